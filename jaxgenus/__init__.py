@@ -1,0 +1,20 @@
+"""jaxgenus: inverse rendering of watertight triangle meshes of any genus, in JAX.
+
+The public API is flat: everything a user needs is re-exported here from the
+private modules (one concept per module).
+"""
+
+from jaxgenus._mesh import Mesh, capacity_bucket
+from jaxgenus._cameras import (
+    Cameras,
+    cameras_from_blender,
+    cameras_from_opencv,
+    cameras_from_opengl,
+    cameras_to_opencv,
+    cameras_to_opengl,
+    look_at,
+    project,
+    sphere_cameras,
+)
+
+__version__ = "0.1.0"
