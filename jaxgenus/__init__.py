@@ -16,5 +16,6 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
+from jaxgenus._primitives import genus_primitive
 
 __version__ = "0.1.0"
