@@ -9,8 +9,8 @@
 Every mesh then goes through a few rounds of tangential relaxation (each vertex
 slides towards the area-weighted centroid of its one-ring, then is projected
 back onto the implicit surface along the SDF gradient), which lifts the small
-angles left by marching tetrahedra. Finally the mesh is centred and scaled into
-the ball of radius `extent`.
+angles left by marching tetrahedra. The shapes are built centred on the origin
+and finally scaled to touch the sphere of radius `extent` from inside.
 
 The signed distance functions below use only Python arithmetic operators and
 `abs`, so the same function serves both manifold3d's scalar callback and the
@@ -259,11 +259,11 @@ def _min_faces(genus: int) -> int:
     return max(_MIN_FACES, _MIN_FACES_PER_HOLE * int(genus))
 
 
-def _check_closed(f, genus: int) -> None:
+def _check_closed(v, f, genus: int) -> None:
     """Raise unless every edge has exactly two faces and V - E + F == 2 - 2 * genus."""
     e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     _, counts = np.unique(e, axis=0, return_counts=True)
-    chi = len(np.unique(f)) - len(counts) + len(f)
+    chi = len(v) - len(counts) + len(f)
     if np.any(counts != 2) or chi != 2 - 2 * genus:  # pragma: no cover  (construction bug)
         raise RuntimeError(f"genus_primitive built a bad mesh for genus {genus} (chi {chi})")
 
@@ -308,10 +308,10 @@ def genus_primitive(genus: int, *, n_faces: int = 5000, extent: float = 1.0) -> 
         v, f, sdf = _torus(n_faces)
     else:
         v, f, sdf = _plate(genus, n_faces)
-    _check_closed(f, genus)
+    _check_closed(v, f, genus)
     v = _relax(v, f, sdf, _RELAX_ITERS)
     if _signed_volume(v, f) < 0:
         f = f[:, ::-1]
-    v -= 0.5 * (v.min(axis=0) + v.max(axis=0))
+    # All three shapes are built centred on the origin; scale to touch the ball.
     v *= float(extent) / np.linalg.norm(v, axis=1).max()
     return Mesh.from_numpy(v.astype(np.float32), f.astype(np.int32))
