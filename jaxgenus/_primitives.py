@@ -160,18 +160,20 @@ def _plate(genus: int, n_faces: int):
     # First guess from the area of the plate's two faces (rims ignored).
     area = 8.0 * (bound[0] - 0.5) * (bound[1] - 0.5)
     h = min(_SAFE_EDGE, math.sqrt(4.0 * area / (math.sqrt(3.0) * n_faces)))
-    for _ in range(4):
+    good = None
+    for _ in range(6):
         m = manifold3d.Manifold.level_set(inside, box, h)
         if m.genus() != genus or len(m.decompose()) != 1:
             h *= 0.8
             continue
+        good = m
         ratio = m.num_tri() / n_faces
         if ratio > 0.92:
             break
         h *= math.sqrt(ratio)
-    else:
-        raise RuntimeError(f"level set failed for genus {genus}")  # pragma: no cover
-    mesh = m.to_mesh()
+    if good is None:  # pragma: no cover
+        raise RuntimeError(f"marching tetrahedra failed for genus {genus}")
+    mesh = good.to_mesh()
     v = np.asarray(mesh.vert_properties, dtype=np.float64)[:, :3]
     f = np.asarray(mesh.tri_verts, dtype=np.int64)
     if len(f) > 1.08 * n_faces:
