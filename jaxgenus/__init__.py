@@ -16,8 +16,6 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
-from jaxgenus._primitives import genus_primitive
-
 from jaxgenus._io import load_mesh, save_mesh
 from jaxgenus._topology import (
     MeshReport,
@@ -28,5 +26,6 @@ from jaxgenus._topology import (
     is_closed_manifold,
     mesh_report,
 )
+from jaxgenus._primitives import genus_primitive
 
 __version__ = "0.1.0"
