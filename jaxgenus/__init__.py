@@ -16,5 +16,6 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
+from jaxgenus import metrics
 
 __version__ = "0.1.0"
