@@ -253,6 +253,7 @@ def icp_align(
     *,
     n_samples: int = 10_000,
     max_iterations: int = 50,
+    tolerance: float = 1e-6,
     initial=None,
     seed: int = 0,
 ) -> ICPResult:
@@ -267,7 +268,11 @@ def icp_align(
     a rotation of a sphere, get no motion). The step `(w, t)` is composed onto
     the transform as the exact rotation `exp(w)` and translation `t`, so the
     result stays rigid. Iterations stop after `max_iterations` or when a step
-    moves no sample by more than `1e-10` of the target's bounding-box diagonal.
+    moves no sample by more than `tolerance` times the target's bounding-box
+    diagonal. Without noise the convergence is quadratic (3-6 iterations for a
+    rotation of 0.3 rad); with a shape mismatch the transform settles in a few
+    iterations and then jitters at the 1e-6 level as closest points hop between
+    triangles, which the default tolerance stops.
 
     ICP only finds the nearest local optimum: it starts from `initial` (a 4x4
     rigid transform, default identity) and expects the shapes to be roughly
@@ -298,7 +303,9 @@ def icp_align(
     tri = vt[ft]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    tolerance = 1e-10 * np.linalg.norm(vt.max(axis=0) - vt.min(axis=0))
+    if not (isinstance(tolerance, (int, float, np.floating)) and tolerance >= 0):
+        raise ValueError(f"tolerance must be a float >= 0, got {tolerance!r}")
+    step_limit = tolerance * np.linalg.norm(vt.max(axis=0) - vt.min(axis=0))
 
     def closest(points):
         sq, face, q = tree.squared_distance(vt, ft, points)
@@ -315,7 +322,7 @@ def icp_align(
         update[:3, 3] = step[3:]
         transform = update @ transform
         moved = np.abs(p @ (update[:3, :3] - np.eye(3)).T + step[3:]).max()
-        if moved < tolerance:
+        if moved <= step_limit:
             break
     p = samples @ transform[:3, :3].T + transform[:3, 3]
     sq, _, _ = closest(p)

@@ -193,6 +193,8 @@ def test_icp_initial_and_rigidity():
         metrics.icp_align(source, target, initial=2 * np.eye(4))
     with pytest.raises(ValueError, match="initial"):
         metrics.icp_align(source, target, initial=np.eye(3))
+    with pytest.raises(ValueError, match="tolerance"):
+        metrics.icp_align(source, target, tolerance=-1.0)
 
 
 def test_input_kinds_and_dtypes_agree():
