@@ -16,7 +16,6 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
-from jaxgenus import metrics
 
 from jaxgenus._io import load_mesh, save_mesh
 from jaxgenus._topology import (
@@ -28,5 +27,6 @@ from jaxgenus._topology import (
     is_closed_manifold,
     mesh_report,
 )
+from jaxgenus import metrics
 
 __version__ = "0.1.0"

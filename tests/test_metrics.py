@@ -1,8 +1,5 @@
 """Tests for jaxgenus.metrics against analytic values and independent references."""
 
-import os
-from pathlib import Path
-
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -13,11 +10,6 @@ from jaxgenus import metrics
 
 R1, R2 = 1.0, 1.25
 N = 20_000  # samples per metric call in these tests (the defaults are larger)
-
-
-def _shared_meshes() -> Path:
-    env = os.environ.get("JAXGENUS_SHARED_MESHES")
-    return Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
 
 
 def _sphere(radius, subdivisions=4):
@@ -155,11 +147,8 @@ def test_icp_recovers_rigid_motion_blob():
     _icp_case(_blob())
 
 
-def test_icp_recovers_rigid_motion_spot():
-    path = _shared_meshes() / "spot_low.obj"
-    if not path.exists():
-        pytest.skip(f"{path} not found (set JAXGENUS_SHARED_MESHES)")
-    _icp_case(trimesh.load(path, process=False))
+def test_icp_recovers_rigid_motion_spot(shared_meshes):
+    _icp_case(trimesh.load(shared_meshes / "spot_low.obj", process=False))
 
 
 def test_icp_aligns_a_different_tessellation():
