@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import igl
 import numpy as np
+from jaxtyping import Float, Int
 from scipy.spatial import cKDTree
 
 from jaxgenus._mesh import Mesh
@@ -33,10 +34,10 @@ __all__ = [
 class Normalization(NamedTuple):
     """A mesh mapped by `x -> scale * x + translation`, and the map itself."""
 
-    vertices: np.ndarray
-    faces: np.ndarray
+    vertices: Float[np.ndarray, "V 3"]
+    faces: Int[np.ndarray, "F 3"]
     scale: float
-    translation: np.ndarray
+    translation: Float[np.ndarray, "3"]
 
 
 class ChamferResult(NamedTuple):
@@ -71,8 +72,8 @@ class ICPResult(NamedTuple):
             target surface.
     """
 
-    vertices: np.ndarray
-    transform: np.ndarray
+    vertices: Float[np.ndarray, "V 3"]
+    transform: Float[np.ndarray, "4 4"]
     residual: float
 
 
@@ -263,14 +264,15 @@ def icp_align(
     iteration moves them by the current transform, finds their exact closest
     points `q_i` on the target surface (libigl AABB tree) with the normals `n_i`
     of the triangles they lie on, and solves the linearized point-to-plane
-    problem `min_{w, t} sum_i ((p_i + w x p_i + t - q_i) . n_i)^2` in closed form
+    problem `min_{w, t} sum_i ((p_i + w x (p_i - c) + t - q_i) . n_i)^2`, with `c`
+    the samples' centroid, in closed form
     (a 6x6 least-squares solve; directions the surface does not constrain, like
     a rotation of a sphere, get no motion). The step `(w, t)` is composed onto
-    the transform as the exact rotation `exp(w)` and translation `t`, so the
+    the transform as the exact rotation `exp(w)` about `c` and translation `t`, so the
     result stays rigid. Iterations stop after `max_iterations` or when a step
     moves no sample by more than `tolerance` times the target's bounding-box
-    diagonal. Without noise the convergence is quadratic (3-6 iterations for a
-    rotation of 0.3 rad); with a shape mismatch the transform settles in a few
+    diagonal. Without noise the convergence is quadratic (about 8 iterations to
+    machine precision for a rotation of 0.3 rad); with a shape mismatch the transform settles in a few
     iterations and then jitters at the 1e-6 level as closest points hop between
     triangles, which the default tolerance stops.
 
@@ -287,6 +289,8 @@ def icp_align(
     vt, ft = _as_vf(target, "target")
     n = _check_count(n_samples, "n_samples")
     iterations = _check_count(max_iterations, "max_iterations")
+    if not (isinstance(tolerance, (int, float, np.floating)) and tolerance >= 0):
+        raise ValueError(f"tolerance must be a float >= 0, got {tolerance!r}")
     if initial is None:
         transform = np.eye(4)
     else:
@@ -294,8 +298,8 @@ def icp_align(
         if transform.shape != (4, 4) or not np.all(np.isfinite(transform)):
             raise ValueError(f"initial must be a finite (4, 4) matrix, got shape {transform.shape}")
         r = transform[:3, :3]
-        if not (np.allclose(r.T @ r, np.eye(3), atol=1e-6) and np.linalg.det(r) > 0
-                and np.allclose(transform[3], [0, 0, 0, 1])):
+        rigid = np.allclose(r.T @ r, np.eye(3), atol=1e-6) and np.linalg.det(r) > 0
+        if not (rigid and np.allclose(transform[3], [0, 0, 0, 1])):
             raise ValueError("initial must be a rigid transform [[R, t], [0, 0, 0, 1]]")
     samples = _sample_surface(vs, fs, n, np.random.default_rng(seed), "source")
     tree = igl.AABB()
@@ -303,8 +307,6 @@ def icp_align(
     tri = vt[ft]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    if not (isinstance(tolerance, (int, float, np.floating)) and tolerance >= 0):
-        raise ValueError(f"tolerance must be a float >= 0, got {tolerance!r}")
     step_limit = tolerance * np.linalg.norm(vt.max(axis=0) - vt.min(axis=0))
 
     def closest(points):
@@ -314,14 +316,16 @@ def icp_align(
     for _ in range(iterations):
         p = samples @ transform[:3, :3].T + transform[:3, 3]
         _, nrm, q = closest(p)
-        jac = np.concatenate([np.cross(p, nrm), nrm], axis=1)
+        centre = p.mean(axis=0)  # rotate about the samples' centroid: well conditioned
+        jac = np.concatenate([np.cross(p - centre, nrm), nrm], axis=1)
         rhs = np.einsum("ij,ij->i", q - p, nrm)
         step, *_ = np.linalg.lstsq(jac, rhs, rcond=None)
+        rot = _rotation_from_vector(step[:3])
         update = np.eye(4)
-        update[:3, :3] = _rotation_from_vector(step[:3])
-        update[:3, 3] = step[3:]
+        update[:3, :3] = rot
+        update[:3, 3] = centre - rot @ centre + step[3:]
         transform = update @ transform
-        moved = np.abs(p @ (update[:3, :3] - np.eye(3)).T + step[3:]).max()
+        moved = np.abs(p @ (rot - np.eye(3)).T + update[:3, 3]).max()
         if moved <= step_limit:
             break
     p = samples @ transform[:3, :3].T + transform[:3, 3]

@@ -133,18 +133,22 @@ def test_normalize_to_unit_sphere():
     np.testing.assert_allclose(pv, v + 0.01 * scale)
 
 
-def _icp_case(target, angle=0.15):
-    t0 = _rigid([1, 2, 3], angle, [0.05, -0.03, 0.02])
-    v = np.asarray(target.vertices)
+def _icp_case(target, angle=0.15, scale=1.0, offset=0.0):
+    t0 = _rigid([1, 2, 3], angle, [0.05 * scale, -0.03 * scale, 0.02 * scale])
+    v = np.asarray(target.vertices) * scale + offset
+    target = (v, np.asarray(target.faces))
     source = (v @ t0[:3, :3].T + t0[:3, 3], np.asarray(target.faces))
     r = metrics.icp_align(source, target, n_samples=2000, seed=0)
-    assert r.residual < 1e-6
-    np.testing.assert_allclose(r.transform, np.linalg.inv(t0), atol=1e-6)
-    np.testing.assert_allclose(r.vertices, v, atol=1e-6)
+    assert r.residual < 1e-6 * scale
+    np.testing.assert_allclose(r.transform[:3, :3], np.linalg.inv(t0)[:3, :3], atol=1e-6)
+    np.testing.assert_allclose(r.transform[:3, 3], np.linalg.inv(t0)[:3, 3], atol=1e-6 * scale)
+    np.testing.assert_allclose(r.vertices, v, atol=1e-6 * scale)
 
 
-def test_icp_recovers_rigid_motion_blob():
-    _icp_case(_blob())
+@pytest.mark.parametrize("scale, offset", [(1.0, 0.0), (50.0, 100.0)])
+def test_icp_recovers_rigid_motion_blob(scale, offset):
+    """Also far from the origin and at another scale (the rotation centre matters)."""
+    _icp_case(_blob(), scale=scale, offset=offset)
 
 
 def test_icp_recovers_rigid_motion_spot(shared_meshes):
