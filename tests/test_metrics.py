@@ -133,11 +133,11 @@ def test_normalize_to_unit_sphere():
     np.testing.assert_allclose(pv, v + 0.01 * scale)
 
 
-def _icp_case(target, angle=0.15, scale=1.0, offset=0.0):
+def _icp_case(mesh, angle=0.15, scale=1.0, offset=0.0):
     t0 = _rigid([1, 2, 3], angle, [0.05 * scale, -0.03 * scale, 0.02 * scale])
-    v = np.asarray(target.vertices) * scale + offset
-    target = (v, np.asarray(target.faces))
-    source = (v @ t0[:3, :3].T + t0[:3, 3], np.asarray(target.faces))
+    v, f = np.asarray(mesh.vertices) * scale + offset, np.asarray(mesh.faces)
+    target = (v, f)
+    source = (v @ t0[:3, :3].T + t0[:3, 3], f)
     r = metrics.icp_align(source, target, n_samples=2000, seed=0)
     assert r.residual < 1e-6 * scale
     np.testing.assert_allclose(r.transform[:3, :3], np.linalg.inv(t0)[:3, :3], atol=1e-6)
