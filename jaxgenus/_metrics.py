@@ -271,10 +271,10 @@ def icp_align(
     the transform as the exact rotation `exp(w)` about `c` and translation `t`, so the
     result stays rigid. Iterations stop after `max_iterations` or when a step
     moves no sample by more than `tolerance` times the target's bounding-box
-    diagonal. Without noise the convergence is quadratic (about 8 iterations to
-    machine precision for a rotation of 0.3 rad); with a shape mismatch the transform settles in a few
-    iterations and then jitters at the 1e-6 level as closest points hop between
-    triangles, which the default tolerance stops.
+    diagonal. Without noise the convergence is quadratic (about 6 iterations to
+    machine precision for a rotation of 0.3 rad); with a shape mismatch the
+    transform settles in a few iterations and then jitters at the 1e-6 level as
+    closest points hop between triangles, which the default tolerance stops.
 
     ICP only finds the nearest local optimum: it starts from `initial` (a 4x4
     rigid transform, default identity) and expects the shapes to be roughly
