@@ -27,5 +27,6 @@ from jaxgenus._topology import (
     mesh_report,
 )
 from jaxgenus._primitives import genus_primitive
+from jaxgenus import metrics
 
 __version__ = "0.1.0"
