@@ -16,5 +16,29 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
+from jaxgenus._operators import UniformLaplacian, uniform_laplacian
+from jaxgenus._energies import (
+    LossWeights,
+    bilaplacian_energy,
+    image_loss,
+    inversion_penalty,
+    objective,
+    render_channels,
+)
+from jaxgenus._largesteps import (
+    SolveInfo,
+    from_differential,
+    lambda_from_alpha,
+    largesteps_solve,
+    to_differential,
+)
+from jaxgenus._adam import GradientTransformation, UniformAdamState, uniform_adam
+from jaxgenus._optimize import (
+    RECORD_KEYS,
+    OptimizeOptions,
+    OptimizerState,
+    init_optimizer_state,
+    optimize_block,
+)
 
 __version__ = "0.1.0"
