@@ -18,3 +18,5 @@ from jaxgenus._cameras import (
 )
 
 __version__ = "0.1.0"
+from jaxgenus._operators import face_normals, vertex_normals
+from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
