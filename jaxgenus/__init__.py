@@ -16,7 +16,7 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
-from jaxgenus._operators import UniformLaplacian, uniform_laplacian
+from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus._energies import (
     LossWeights,
     bilaplacian_energy,
@@ -40,5 +40,6 @@ from jaxgenus._optimize import (
     init_optimizer_state,
     optimize_block,
 )
+from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
 
 __version__ = "0.1.0"

@@ -102,7 +102,7 @@ def bilaplacian_energy(vertices: Float[Array, "V 3"], faces: Int[Array, "F 3"]) 
     return jnp.sum(lx * lx)
 
 
-def _face_cross(v, faces):
+def _raw_normals(v, faces):
     a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
     return jnp.cross(b - a, c - a)
 
@@ -119,8 +119,8 @@ def inversion_penalty(
     """
     if vertices.shape != rest_vertices.shape:
         raise ValueError(f"rest_vertices must have shape {vertices.shape}, got {rest_vertices.shape}")
-    n = _face_cross(vertices, faces)
-    n0 = _face_cross(rest_vertices, faces)
+    n = _raw_normals(vertices, faces)
+    n0 = _raw_normals(rest_vertices, faces)
     a2 = jnp.sum(n0 * n0, axis=-1)
     ok = a2 > jnp.finfo(a2.dtype).tiny
     det = jnp.where(ok, jnp.sum(n * n0, axis=-1) / jnp.where(ok, a2, 1.0), 0.0)

@@ -30,7 +30,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from jaxgenus._adam import UniformAdamState, uniform_adam
-from jaxgenus._energies import LossWeights, _face_cross, objective, render_channels
+from jaxgenus._energies import LossWeights, _raw_normals, objective, render_channels
 from jaxgenus._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import uniform_laplacian
@@ -143,7 +143,7 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray) -> OptimizerState:
 
 
 def _inverted_count(x, rest, faces, face_mask):
-    n, n0 = _face_cross(x, faces), _face_cross(rest, faces)
+    n, n0 = _raw_normals(x, faces), _raw_normals(rest, faces)
     nondegenerate = jnp.sum(n0 * n0, axis=-1) > 0
     return jnp.sum(face_mask & nondegenerate & (jnp.sum(n * n0, axis=-1) <= 0)).astype(jnp.int32)
 
