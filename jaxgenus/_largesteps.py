@@ -45,7 +45,8 @@ class SolveInfo(eqx.Module):
         iterations: int32 CG iterations taken.
         residual: the true relative residual `max_c ||b_c - A x_c|| / ||b_c||`
             over the coordinate columns (0 where `b_c = 0`).
-        converged: bool, the CG residual reached `rtol` within `max_iter`.
+        converged: bool, the CG residual reached `rtol` within `max_iter` (False
+            whenever `b` or the result is not finite).
     """
 
     iterations: Int[Array, ""]
@@ -103,8 +104,10 @@ def largesteps_solve(
         return v + lambda_ * laplacian(v)
 
     inv_diag = (1.0 / (1.0 + lambda_ * laplacian.degree)).astype(b.dtype)[:, None]
-    x = jnp.zeros_like(b) if x0 is None else x0.astype(b.dtype)
     bnorm = _column_norms(b)
+    nonzero = bnorm > 0
+    # a zero right-hand side has the solution 0: start there and stop at once
+    x = jnp.zeros_like(b) if x0 is None else jnp.where(nonzero, x0.astype(b.dtype), 0.0)
     tol2 = (rtol * bnorm) ** 2
     r = b - matvec(x)
     z = inv_diag * r
@@ -112,14 +115,14 @@ def largesteps_solve(
     tiny = jnp.finfo(b.dtype).tiny
 
     def active(r):
-        return jnp.sum(r * r, axis=0) > tol2
+        return nonzero & (jnp.sum(r * r, axis=0) > tol2)
 
     def cond(carry):
-        k, _, r, _, _, _ = carry
+        k, _, r, _, _ = carry
         return (k < max_iter) & jnp.any(active(r))
 
     def body(carry):
-        k, x, r, p, rz, _ = carry
+        k, x, r, p, rz = carry
         on = active(r)
         ap = matvec(p)
         pap = jnp.sum(p * ap, axis=0)
@@ -130,12 +133,14 @@ def largesteps_solve(
         rz_new = jnp.sum(r * z, axis=0)
         beta = jnp.where(rz > tiny, rz_new / jnp.where(rz > tiny, rz, 1.0), 0.0)
         p = jnp.where(on, z + beta * p, p)
-        return k + 1, x, r, p, rz_new, on
+        return k + 1, x, r, p, rz_new
 
-    k, x, r, _, _, _ = jax.lax.while_loop(cond, body, (jnp.int32(0), x, r, z, rz, jnp.ones(b.shape[1], bool)))
-    converged = ~jnp.any(active(r))
+    k, x, r, _, _ = jax.lax.while_loop(cond, body, (jnp.int32(0), x, r, z, rz))
     true_r = _column_norms(b - matvec(x))
-    rel = jnp.max(jnp.where(bnorm > 0, true_r / jnp.where(bnorm > 0, bnorm, 1.0), 0.0))
+    rel = jnp.max(jnp.where(nonzero, true_r / jnp.where(nonzero, bnorm, 1.0), 0.0))
+    # NaN compares False in `active`: a non-finite b or iterate must not read as converged
+    finite = jnp.all(jnp.isfinite(bnorm)) & jnp.isfinite(rel)
+    converged = ~jnp.any(active(r)) & finite
     return x, SolveInfo(iterations=k, residual=rel, converged=converged)
 
 

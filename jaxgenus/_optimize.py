@@ -11,7 +11,7 @@ One step: pick the views (all, or `views_per_step` random ones), evaluate the
 objective and its gradient at `x`, pull the gradient back to `u` by a solve,
 take a uniform-Adam step in `u`, and solve the new `x`. Both solves are
 warm-started (the new `x` at the old one, the pulled-back gradient at the
-previous step's). A step whose loss or update is not finite is skipped (state unchanged)
+previous step's). A step whose loss, gradient or update is not finite is skipped (state unchanged)
 and flagged with status 2; a solve that hit `cg_max_iter` is flagged with
 status 1. The record holds fixed-shape `(n_steps,)` arrays.
 
@@ -58,7 +58,7 @@ that is switched off reads 0); `grad_norm` is `||d loss / d x||`;
 of the new-`x` solve (forward); `cg_residual` is the larger true relative
 residual of the two; `inverted_faces` counts faces flipped relative to the rest
 shape after the step; `status` is 0 (ok), 1 (a solve hit `cg_max_iter`) or
-2 (non-finite loss or update: step skipped)."""
+2 (non-finite loss, gradient or update: the step is skipped, the state unchanged)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,7 +186,7 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
         updates, new_adam = adam.update(gu, adam_state)
         new_u = jnp.where(vmask, u + updates, 0.0)
         new_x, info_f = solve(new_u, x)
-        ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
+        ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
         x, u, gu, adam_state = keep((new_x, new_u, gu, new_adam), (x, u, gu_prev, adam_state))
         status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)

@@ -174,6 +174,13 @@ def test_largesteps_nonconvergence_is_reported():
     x, info = jg.largesteps_solve(lap, jnp.asarray(v, jnp.float32), 1e4, max_iter=3)
     assert not bool(info.converged) and int(info.iterations) == 3 and float(info.residual) > 1e-3
     assert np.all(np.isfinite(np.asarray(x)))
+    # a zero right-hand side: x = 0 at once, whatever the warm start
+    x, info = jg.largesteps_solve(lap, jnp.zeros((len(v), 3)), 19.0, jnp.ones((len(v), 3)))
+    assert int(info.iterations) == 0 and bool(info.converged) and np.all(np.asarray(x) == 0)
+    # a non-finite right-hand side is never reported as converged
+    b = jnp.asarray(v, jnp.float32).at[3, 1].set(jnp.nan)
+    _, info = jg.largesteps_solve(lap, b, 19.0)
+    assert not bool(info.converged)
 
 
 def test_differential_roundtrip_gradient_and_alpha_form():
@@ -336,3 +343,12 @@ def test_optimize_block_flags_nonfinite_step_and_keeps_state():
     assert np.all(np.asarray(rec["status"]) == 2)
     np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)
     assert np.all(np.isfinite(np.asarray(state.adam.mu)))
+
+    def nan_gradient_renderer(mesh, cameras, *, channels):  # finite image, NaN gradient (d sqrt(0))
+        spike = 0.0 * jnp.sum(jnp.sqrt(jnp.abs(mesh.vertices)))
+        return soft_silhouette(mesh, cameras, channels=channels) + spike
+
+    opts = jg.OptimizeOptions(renderer=nan_gradient_renderer)
+    state, rec = jg.optimize_block(state, cams, targets, n_steps=2, options=opts)
+    assert np.all(np.isfinite(np.asarray(rec["loss"]))) and np.all(np.asarray(rec["status"]) == 2)
+    np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)
