@@ -28,5 +28,30 @@ from jaxgenus._topology import (
 )
 from jaxgenus._primitives import genus_primitive
 from jaxgenus import metrics
+from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
+from jaxgenus._energies import (
+    LossWeights,
+    bilaplacian_energy,
+    image_loss,
+    inversion_penalty,
+    objective,
+    render_channels,
+)
+from jaxgenus._largesteps import (
+    SolveInfo,
+    from_differential,
+    lambda_from_alpha,
+    largesteps_solve,
+    to_differential,
+)
+from jaxgenus._adam import GradientTransformation, UniformAdamState, uniform_adam
+from jaxgenus._optimize import (
+    RECORD_KEYS,
+    OptimizeOptions,
+    OptimizerState,
+    init_optimizer_state,
+    optimize_block,
+)
+from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
 
 __version__ = "0.1.0"

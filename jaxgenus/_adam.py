@@ -1,0 +1,81 @@
+"""`uniform_adam`: Adam with one shared step size per parameter array (Nicolet et al. 2021).
+
+The moments are Adam's, but the denominator is `eps + max(sqrt(v_hat))` over all
+entries of each parameter array instead of `eps + sqrt(v_hat)` per entry, so a
+step moves every vertex by the same scale and never amplifies a small, noisy
+gradient component. The transformation is an optax-style
+`GradientTransformation` (a NamedTuple of pure `init` and `update` functions):
+it composes with optax when optax is installed and plugs into
+`optimistix.OptaxMinimiser` without it.
+
+Padding: entries whose gradient is always zero (padded vertices) keep zero
+moments and get zero updates, and since `sqrt(v_hat) >= 0` they never change the
+max, which therefore only sees live entries.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Int, PyTree
+
+__all__ = ["GradientTransformation", "UniformAdamState", "uniform_adam"]
+
+
+class GradientTransformation(NamedTuple):
+    """The optax interface: `init(params) -> state`, `update(grads, state, params=None) -> (updates, state)`."""
+
+    init: Callable[..., Any]
+    update: Callable[..., Any]
+
+
+class UniformAdamState(NamedTuple):
+    """`count` (int32 steps taken), `mu` and `nu` (first and second moments, like params)."""
+
+    count: Int[Array, ""]
+    mu: PyTree
+    nu: PyTree
+
+
+def uniform_adam(learning_rate: float, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> GradientTransformation:
+    """Adam whose denominator is `eps + max over all entries of sqrt(v_hat)` (per parameter array).
+
+    Updates are `-learning_rate * m_hat / (eps + max(sqrt(v_hat)))` with the usual
+    bias corrections; add them to the parameters (`optax.apply_updates` or `p + u`).
+    `learning_rate` may be a float or a traced scalar.
+    """
+    for name, val, lo, hi in (("b1", b1, 0.0, 1.0), ("b2", b2, 0.0, 1.0)):
+        if not lo <= float(val) < hi:
+            raise ValueError(f"{name} must be in [0, 1), got {val}")
+    if float(eps) < 0:
+        raise ValueError(f"eps must be >= 0, got {eps}")
+    if isinstance(learning_rate, (int, float)) and learning_rate < 0:
+        raise ValueError(f"learning_rate must be >= 0, got {learning_rate}")
+
+    def init(params):
+        # two separate buffers, so that a state can be donated to a jit-compiled function
+        return UniformAdamState(
+            count=jnp.zeros((), jnp.int32),
+            mu=jax.tree.map(jnp.zeros_like, params),
+            nu=jax.tree.map(jnp.zeros_like, params),
+        )
+
+    def update(grads, state, params=None, **extra_args):
+        del params, extra_args
+        count = state.count + 1
+        mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
+        nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
+        t = count.astype(jnp.result_type(float))
+        c1 = 1.0 - b1**t
+        c2 = 1.0 - b2**t
+
+        def step(m, v):
+            denom = eps + jnp.sqrt(jnp.max(v) / c2.astype(v.dtype))
+            return (-learning_rate * (m / c1.astype(m.dtype)) / denom).astype(m.dtype)
+
+        updates = jax.tree.map(step, mu, nu)
+        return updates, UniformAdamState(count=count, mu=mu, nu=nu)
+
+    return GradientTransformation(init, update)

@@ -1,0 +1,256 @@
+"""`optimize_block`: n large-steps Adam steps as one jit-compiled `lax.scan`.
+
+The optimizer state keeps the vertices `x` (in its `mesh`), the uniform-Adam
+moments (in the `u = (I + lambda L) x` space), the rest vertices of the
+inversion penalty, a step counter and a PRNG key. Every per-vertex array is
+`(Vcap, 3)`, so a remesher can map the state onto a new mesh. `u` itself is not
+stored: a block starts from `u = (I + lambda L) x` and ends with `x` solved
+back from `u`, so `mesh.vertices` is always the current shape.
+
+One step: pick the views (all, or `views_per_step` random ones), evaluate the
+objective and its gradient at `x`, pull the gradient back to `u` by a solve,
+take a uniform-Adam step in `u`, and solve the new `x`. Both solves are
+warm-started (the new `x` at the old one, the pulled-back gradient at the
+previous step's). A step whose loss, gradient or update is not finite is skipped (state unchanged)
+and flagged with status 2; a solve that hit `cg_max_iter` is flagged with
+status 1. The record holds fixed-shape `(n_steps,)` arrays.
+
+`optimize_block` compiles once per capacity bucket (array shapes), number of
+steps and options; the state buffers are donated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from jaxgenus._adam import UniformAdamState, uniform_adam
+from jaxgenus._energies import LossWeights, _raw_normals, objective, render_channels
+from jaxgenus._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
+from jaxgenus._mesh import Mesh
+from jaxgenus._operators import uniform_laplacian
+
+__all__ = ["OptimizeOptions", "OptimizerState", "init_optimizer_state", "optimize_block", "RECORD_KEYS"]
+
+RECORD_KEYS = (
+    "loss",
+    "alpha",
+    "normal",
+    "bilaplacian",
+    "inversion",
+    "grad_norm",
+    "cg_iterations_forward",
+    "cg_iterations_backward",
+    "cg_residual",
+    "inverted_faces",
+    "status",
+)
+"""Keys of the per-step record of `optimize_block`.
+
+`loss` and the weighted terms are evaluated at the step's starting `x` (a term
+that is switched off reads 0); `grad_norm` is `||d loss / d x||`;
+`cg_iterations_*` are the iterations of the gradient pull-back (backward) and
+of the new-`x` solve (forward); `cg_residual` is the larger true relative
+residual of the two; `inverted_faces` counts faces flipped relative to the rest
+shape after the step; `status` is 0 (ok), 1 (a solve hit `cg_max_iter`) or
+2 (non-finite loss, gradient or update: the step is skipped, the state unchanged)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizeOptions:
+    """Static settings of `optimize_block` (hashable; changing one recompiles).
+
+    Attributes:
+        learning_rate: uniform-Adam step size (in `u` space, about the distance a
+            vertex moves per step for smooth motions).
+        lambda_: large-steps `lambda` (19, as in Nicolet et al.).
+        b1, b2, eps: uniform-Adam parameters.
+        weights: `LossWeights` of the objective.
+        views_per_step: number of cameras sampled (without replacement) per step;
+            `None` uses all of them every step.
+        cg_rtol, cg_max_iter: stopping rule of the CG solves.
+        renderer: `renderer(mesh, cameras, channels=..., **render_kwargs)`;
+            `None` is `jaxgenus.render`.
+        render_kwargs: extra keyword arguments of the renderer as `(name, value)` pairs
+            (e.g. `(("sigma", 0.5), ("gamma", 0.01))`).
+    """
+
+    learning_rate: float = 3e-2
+    lambda_: float = DEFAULT_LAMBDA
+    b1: float = 0.9
+    b2: float = 0.999
+    eps: float = 1e-8
+    weights: LossWeights = LossWeights()
+    views_per_step: int | None = None
+    cg_rtol: float = 1e-6
+    cg_max_iter: int = 2000
+    renderer: Callable | None = None
+    render_kwargs: tuple = ()
+
+    def __post_init__(self):
+        if not self.learning_rate > 0:
+            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
+        if not self.lambda_ >= 0:
+            raise ValueError(f"lambda_ must be >= 0, got {self.lambda_}")
+        if self.views_per_step is not None and self.views_per_step < 1:
+            raise ValueError(f"views_per_step must be None or >= 1, got {self.views_per_step}")
+        if not isinstance(self.weights, LossWeights):
+            raise ValueError(f"weights must be a LossWeights, got {type(self.weights).__name__}")
+        if not isinstance(self.render_kwargs, tuple):
+            raise ValueError("render_kwargs must be a tuple of (name, value) pairs")
+
+    def adam(self):
+        return uniform_adam(self.learning_rate, self.b1, self.b2, self.eps)
+
+
+class OptimizerState(eqx.Module):
+    """State carried between `optimize_block` calls (a PyTree).
+
+    Attributes:
+        mesh: the current mesh; `mesh.vertices` is `x`.
+        adam: `UniformAdamState` with `(Vcap, 3)` moments of `u`.
+        rest_vertices: `(Vcap, 3)` shape at the last remesh (inversion penalty reference).
+        step: int32 steps taken since `init_optimizer_state`.
+        key: PRNG key for view sampling.
+    """
+
+    mesh: Mesh
+    adam: UniformAdamState
+    rest_vertices: Float[Array, "V 3"]
+    step: Int[Array, ""]
+    key: PRNGKeyArray
+
+
+def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray) -> OptimizerState:
+    """A fresh state at a copy of `mesh` (zero moments, rest shape = current shape).
+
+    The state owns its buffers, so donating it to `optimize_block` leaves `mesh` intact.
+    """
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"mesh must be a Mesh, got {type(mesh).__name__}")
+    return OptimizerState(
+        mesh=jax.tree.map(jnp.array, mesh),
+        adam=uniform_adam(1.0).init(mesh.vertices),
+        rest_vertices=jnp.array(mesh.vertices),
+        step=jnp.zeros((), jnp.int32),
+        key=key,
+    )
+
+
+def _inverted_count(x, rest, faces, face_mask):
+    n, n0 = _raw_normals(x, faces), _raw_normals(rest, faces)
+    nondegenerate = jnp.sum(n0 * n0, axis=-1) > 0
+    return jnp.sum(face_mask & nondegenerate & (jnp.sum(n * n0, axis=-1) <= 0)).astype(jnp.int32)
+
+
+def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions):
+    mesh = state.mesh
+    laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
+    vmask = mesh.vertex_mask[:, None]
+    fmask = mesh.face_mask
+    lam = options.lambda_
+    adam = options.adam()
+    n_views = len(cameras)
+    k = options.views_per_step
+
+    def loss_fn(x, cams, tgt):
+        m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
+        return objective(
+            m,
+            cams,
+            tgt,
+            state.rest_vertices,
+            weights=options.weights,
+            renderer=options.renderer,
+            render_kwargs=dict(options.render_kwargs),
+        )
+
+    solve = lambda b, x0: largesteps_solve(laplacian, b, lam, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
+
+    def step(carry, _):
+        x, u, gu_prev, adam_state, key = carry
+        key, sub = jax.random.split(key)
+        if k is None or k >= n_views:
+            cams, tgt = cameras, targets
+        else:
+            idx = jax.random.choice(sub, n_views, (k,), replace=False)
+            cams, tgt = cameras[idx], targets[idx]
+        (loss, terms), gx = jax.value_and_grad(loss_fn, has_aux=True)(x, cams, tgt)
+        gx = jnp.where(vmask, gx, 0.0)
+        gu, info_b = solve(gx, gu_prev)
+        updates, new_adam = adam.update(gu, adam_state)
+        new_u = jnp.where(vmask, u + updates, 0.0)
+        new_x, info_f = solve(new_u, x)
+        ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
+        keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
+        x, u, gu, adam_state = keep((new_x, new_u, gu, new_adam), (x, u, gu_prev, adam_state))
+        status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
+        zero = jnp.zeros((), x.dtype)
+        record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion")}
+        record.update(
+            loss=loss,
+            grad_norm=jnp.sqrt(jnp.sum(gx * gx)),
+            cg_iterations_forward=info_f.iterations,
+            cg_iterations_backward=info_b.iterations,
+            cg_residual=jnp.maximum(info_f.residual, info_b.residual),
+            inverted_faces=_inverted_count(x, state.rest_vertices, mesh.faces, fmask),
+            status=status,
+        )
+        return (x, u, gu, adam_state, key), record
+
+    x0 = mesh.vertices
+    u0 = jnp.where(vmask, to_differential(laplacian, x0, lam), 0.0)
+    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key)
+    (x, _, _, adam_state, key), record = jax.lax.scan(step, carry, None, length=n_steps)
+    new_mesh = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
+    new_state = OptimizerState(
+        mesh=new_mesh, adam=adam_state, rest_vertices=state.rest_vertices, step=state.step + n_steps, key=key
+    )
+    return new_state, {name: record[name] for name in RECORD_KEYS}
+
+
+_optimize_block_jit = jax.jit(_optimize_block, static_argnames=("n_steps", "options"), donate_argnames=("state",))
+
+
+def optimize_block(
+    state: OptimizerState,
+    cameras,
+    targets: Float[Array, "N H W C"],
+    *,
+    n_steps: int,
+    options: OptimizeOptions = OptimizeOptions(),
+) -> tuple[OptimizerState, dict[str, Array]]:
+    """Run `n_steps` large-steps uniform-Adam steps in one jit-compiled `lax.scan`.
+
+    Args:
+        state: from `init_optimizer_state` or a previous block; its buffers are
+            donated (do not reuse the argument).
+        cameras: `Cameras` with N views.
+        targets: `(N, H, W, 1)` silhouettes or `(N, H, W, 4)` RGBA normal images
+            (see `jaxgenus._energies`), one per camera.
+        n_steps: number of steps (static).
+        options: `OptimizeOptions` (static).
+
+    Returns:
+        `(new_state, record)` with `record[name]` an `(n_steps,)` array for every
+        name in `RECORD_KEYS`.
+    """
+    if not isinstance(n_steps, int) or n_steps < 1:
+        raise ValueError(f"n_steps must be a positive int, got {n_steps!r}")
+    if not isinstance(options, OptimizeOptions):
+        raise ValueError(f"options must be an OptimizeOptions, got {type(options).__name__}")
+    if not isinstance(state, OptimizerState):
+        raise ValueError(f"state must be an OptimizerState, got {type(state).__name__}")
+    render_channels(targets)
+    if targets.shape[:3] != (len(cameras), cameras.height, cameras.width):
+        raise ValueError(
+            f"targets must have shape ({len(cameras)}, {cameras.height}, {cameras.width}, C), got {targets.shape}"
+        )
+    if options.views_per_step is not None and options.views_per_step > len(cameras):
+        raise ValueError(f"options.views_per_step ({options.views_per_step}) exceeds the {len(cameras)} cameras")
+    return _optimize_block_jit(state, cameras, targets, n_steps, options)

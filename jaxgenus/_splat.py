@@ -1,0 +1,291 @@
+"""Face-major "splat" soft rasterization with a hand-written VJP (private).
+
+Every face owns a `B x B` pixel window (its blurred bounding box, clipped to the
+image). For each (face, window pixel) pair we evaluate the SoftRas coverage and
+the depth score, and scatter per-pixel sums into a canvas padded by `B` on the
+right and bottom. The backward pass recomputes the pairs, gathers per-pixel
+upstream values into the windows and reduces per-face gradients over each window,
+so no pixel x face temporaries exist and autodiff never sees the pair level.
+
+Inputs are "tiers": groups of faces sharing a window size (see `_render.py`).
+Per tier and view, every face slot carries
+
+* `v (K, 3, 2)`: its vertices in pixel coordinates,
+* `plane (K, 3)`: `(gx, gy, c)`, the normalized inverse depth `q` as an affine
+  function of the pixel position, `q = gx * u + gy * v + c`,
+* `qrange (K, 2)`: `(lo, hi)`, the clamp of `q` (vertex min / max),
+* `attr (K, A)`: face-constant blend attributes (normals, shading),
+* `valid (K,)` and `origin (K, 2)` (int, window corner `(col, row)`).
+
+Per view, `dconst = (scale, offset)` turns `q` into inverse depth,
+`1/z = q * scale + offset` (only used when the depth channel is blended).
+
+Outputs per view: `logt (H, W)`, the log transmittance `sum_j log(1 - D_j)`,
+and `blend (H, W, A + depth)`, the depth-softmax blend of the attributes with the
+background. See docs/rendering.md for the model and the safe formulations.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+# D_j < 1e-4 is treated as exactly 0: d^2 > sigma * ln(1e4) outside the face.
+CUTOFF_LOG = math.log(1e4)
+
+
+class SplatConfig(NamedTuple):
+    """Static configuration of one splat call (hashable)."""
+
+    height: int
+    width: int
+    windows: tuple[int, ...]  # window size per tier
+    sigma: float
+    gamma: float
+    want_logt: bool
+    n_attr: int  # face-constant blend channels
+    want_depth: bool  # blend the per-pixel depth as one more channel
+    background: tuple[float, ...]  # blend background, n_attr + want_depth values
+
+    @property
+    def n_blend(self) -> int:
+        return self.n_attr + int(self.want_depth)
+
+    @property
+    def pad(self) -> int:
+        return max(self.windows)
+
+
+class Tier(NamedTuple):
+    v: jax.Array
+    plane: jax.Array
+    qrange: jax.Array
+    attr: jax.Array
+    valid: jax.Array
+    origin: jax.Array
+
+
+def _neg(dtype):
+    return jnp.asarray(-0.25 * jnp.finfo(dtype).max, dtype)
+
+
+class _Pairs(NamedTuple):
+    idx: jax.Array  # (K*B*B,) flat canvas index
+    px: jax.Array  # (K, P) pixel centre
+    py: jax.Array
+    live: jax.Array  # (K, P) valid face and inside the blur radius
+    inside: jax.Array
+    x: jax.Array  # sigmoid argument, -s d^2 / sigma
+    ea: jax.Array  # exp(-|x|)
+    qraw: jax.Array
+    q: jax.Array
+    edges: tuple  # per edge (t, dx, dy, d2)
+    sel: tuple  # per edge, bool: this edge is the nearest
+
+
+def _pairs(cfg: SplatConfig, tier: Tier, b: int) -> _Pairs:
+    """Recompute every per-pair quantity of one tier in one view."""
+    dtype = tier.v.dtype
+    off = jnp.arange(b)
+    oy, ox = jnp.meshgrid(off, off, indexing="ij")
+    oy, ox = oy.reshape(-1), ox.reshape(-1)
+    col = tier.origin[:, 0:1] + ox[None, :]
+    row = tier.origin[:, 1:2] + oy[None, :]
+    idx = (row * (cfg.width + cfg.pad) + col).reshape(-1)
+    px = col.astype(dtype) + 0.5
+    py = row.astype(dtype) + 0.5
+
+    v = tier.v
+    edges, crosses = [], []
+    for i in range(3):
+        ax, ay = v[:, i, 0:1], v[:, i, 1:2]
+        bx, by = v[:, (i + 1) % 3, 0:1], v[:, (i + 1) % 3, 1:2]
+        ex, ey = bx - ax, by - ay
+        l2 = ex * ex + ey * ey
+        ok = l2 > 1e-20
+        il = jnp.where(ok, 1.0 / jnp.where(ok, l2, 1.0), 0.0)
+        wx, wy = px - ax, py - ay
+        t = jnp.clip((wx * ex + wy * ey) * il, 0.0, 1.0)
+        dx, dy = wx - t * ex, wy - t * ey
+        edges.append((t, dx, dy, dx * dx + dy * dy))
+        crosses.append(ex * wy - ey * wx)
+    e0 = v[:, 1] - v[:, 0]
+    e2 = v[:, 2] - v[:, 0]
+    area2 = (e0[:, 0] * e2[:, 1] - e0[:, 1] * e2[:, 0])[:, None]
+    sgn = jnp.sign(area2)
+    inside = (crosses[0] * sgn > 0) & (crosses[1] * sgn > 0) & (crosses[2] * sgn > 0)
+    d0, d1, d2_ = edges[0][3], edges[1][3], edges[2][3]
+    d2 = jnp.minimum(d0, jnp.minimum(d1, d2_))
+    sel0 = d0 <= jnp.minimum(d1, d2_)
+    sel1 = ~sel0 & (d1 <= d2_)
+    sel2 = ~sel0 & ~sel1
+    live = tier.valid[:, None] & (inside | (d2 <= cfg.sigma * CUTOFF_LOG))
+    x = jnp.where(inside, d2, -d2) / cfg.sigma
+    ea = jnp.exp(-jnp.abs(x))
+    qraw = tier.plane[:, 0:1] * px + tier.plane[:, 1:2] * py + tier.plane[:, 2:3]
+    q = jnp.clip(qraw, tier.qrange[:, 0:1], tier.qrange[:, 1:2])
+    return _Pairs(idx, px, py, live, inside, x, ea, qraw, q, tuple(edges), (sel0, sel1, sel2))
+
+
+def _log_terms(p: _Pairs):
+    """`log(1 - D)`, `log D` and `D` from one exp and one log1p (stable for any x)."""
+    l1 = jnp.log1p(p.ea)
+    log1m = -(jnp.maximum(p.x, 0.0) + l1)
+    logd = -(jnp.maximum(-p.x, 0.0) + l1)
+    d = jnp.where(p.x >= 0, 1.0, p.ea) / (1.0 + p.ea)
+    return log1m, logd, d
+
+
+def _depth(q, dconst):
+    return 1.0 / (q * dconst[0] + dconst[1])
+
+
+def _blend_values(cfg, tier, p, dconst):
+    """`(K, P, n_blend)` blend attributes of every pair."""
+    k, npix = p.q.shape
+    parts = []
+    if cfg.n_attr:
+        parts.append(jnp.broadcast_to(tier.attr[:, None, :], (k, npix, cfg.n_attr)))
+    if cfg.want_depth:
+        parts.append(_depth(p.q, dconst)[..., None])
+    return jnp.concatenate(parts, axis=-1)
+
+
+def _canvas_size(cfg):
+    return (cfg.height + cfg.pad) * (cfg.width + cfg.pad)
+
+
+def _crop(cfg, flat):
+    img = flat.reshape((cfg.height + cfg.pad, cfg.width + cfg.pad) + flat.shape[1:])
+    return img[: cfg.height, : cfg.width]
+
+
+def _uncrop(cfg, img):
+    pad = [(0, cfg.pad), (0, cfg.pad)] + [(0, 0)] * (img.ndim - 2)
+    return jnp.pad(img, pad).reshape((_canvas_size(cfg),) + img.shape[2:])
+
+
+def _score_bg(cfg, dtype):
+    # the background sits one normalized depth range behind the farthest vertex
+    return jnp.asarray(-1.0 / cfg.gamma, dtype)
+
+
+def _forward_view(cfg: SplatConfig, tiers, dconst):
+    dtype = tiers[0].v.dtype
+    size = _canvas_size(cfg)
+    pairs = [_pairs(cfg, t, b) for t, b in zip(tiers, cfg.windows)]
+    logt = jnp.zeros((size,), dtype)
+    mcanvas = jnp.full((size,), _neg(dtype), dtype)
+    scores = []
+    for t, p in zip(tiers, pairs):
+        log1m, logd, _ = _log_terms(p)
+        if cfg.want_logt:
+            logt = logt.at[p.idx].add(jnp.where(p.live, log1m, 0.0).reshape(-1))
+        if cfg.n_blend:
+            s = jnp.where(p.live, logd + p.q / cfg.gamma, _neg(dtype))
+            scores.append(s)
+            mcanvas = mcanvas.at[p.idx].max(s.reshape(-1))
+    out = {"logt": _crop(cfg, logt)}
+    if cfg.n_blend:
+        m = jnp.maximum(mcanvas, _score_bg(cfg, dtype))
+        acc = jnp.zeros((size, 1 + cfg.n_blend), dtype)
+        for t, p, s in zip(tiers, pairs, scores):
+            w = jnp.exp(s - m[p.idx].reshape(s.shape))
+            vals = _blend_values(cfg, t, p, dconst)
+            stack = jnp.concatenate([w[..., None], w[..., None] * vals], axis=-1)
+            acc = acc.at[p.idx].add(stack.reshape(-1, 1 + cfg.n_blend))
+        wb = jnp.exp(_score_bg(cfg, dtype) - m)
+        bg = jnp.asarray(cfg.background, dtype)
+        wsum = acc[:, 0] + wb
+        blend = (acc[:, 1:] + wb[:, None] * bg) / wsum[:, None]
+        out["blend"] = _crop(cfg, blend)
+        out["mlw"] = _crop(cfg, m + jnp.log(wsum))
+    return out
+
+
+def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
+    """Per-face gradients of one view (envelope theorem for the distance)."""
+    dtype = tiers[0].v.dtype
+    cols = [g_logt[..., None]]
+    if cfg.n_blend:
+        gbo = jnp.sum(g_blend * res["blend"], axis=-1)
+        cols += [res["mlw"][..., None], gbo[..., None], g_blend]
+    pix = _uncrop(cfg, jnp.concatenate(cols, axis=-1))
+    grads = []
+    for t, b in zip(tiers, cfg.windows):
+        p = _pairs(cfg, t, b)
+        k, npix = p.x.shape
+        gp = pix[p.idx].reshape(k, npix, -1)
+        _, logd, dval = _log_terms(p)
+        gx = -gp[..., 0] * dval if cfg.want_logt else jnp.zeros_like(p.x)
+        gq = jnp.zeros_like(p.x)
+        gattr = jnp.zeros((k, cfg.n_attr), dtype)
+        if cfg.n_blend:
+            s = logd + p.q / cfg.gamma
+            pj = jnp.where(p.live, jnp.exp(s - gp[..., 1]), 0.0)
+            gb = gp[..., 3:]
+            vals = _blend_values(cfg, t, p, dconst)
+            gscore = pj * (jnp.sum(gb * vals, axis=-1) - gp[..., 2])
+            gx = gx + gscore * (1.0 - dval)
+            gq = gscore / cfg.gamma
+            if cfg.n_attr:
+                gattr = jnp.einsum("kp,kpc->kc", pj, gb[..., : cfg.n_attr])
+            if cfg.want_depth:
+                z = vals[..., -1]
+                gq = gq - pj * gb[..., -1] * z * z * dconst[0]
+        gx = jnp.where(p.live, gx, 0.0)
+        gq = jnp.where(p.live, gq, 0.0)
+        gd2 = jnp.where(p.inside, gx, -gx) / cfg.sigma
+        gv = []
+        for i in range(3):
+            # vertex i is the start of edge i and the end of edge i-1
+            ta, dxa, dya, _ = p.edges[i]
+            tb, dxb, dyb, _ = p.edges[(i - 1) % 3]
+            ca = jnp.where(p.sel[i], -2.0 * (1.0 - ta) * gd2, 0.0)
+            cb = jnp.where(p.sel[(i - 1) % 3], -2.0 * tb * gd2, 0.0)
+            gv.append(jnp.stack([jnp.sum(ca * dxa + cb * dxb, axis=1), jnp.sum(ca * dya + cb * dyb, axis=1)], -1))
+        free = (p.qraw > t.qrange[:, 0:1]) & (p.qraw < t.qrange[:, 1:2])
+        gqf = jnp.where(free, gq, 0.0)
+        gplane = jnp.stack([jnp.sum(gqf * p.px, 1), jnp.sum(gqf * p.py, 1), jnp.sum(gqf, 1)], -1)
+        glo = jnp.sum(jnp.where(p.qraw <= t.qrange[:, 0:1], gq, 0.0), 1)
+        ghi = jnp.sum(jnp.where(~free & (p.qraw > t.qrange[:, 0:1]), gq, 0.0), 1)
+        grads.append(
+            Tier(jnp.stack(gv, 1), gplane, jnp.stack([glo, ghi], -1), gattr, None, None)
+        )
+    return tuple(grads)
+
+
+def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
+    """Rasterize all views: returns `(logt (N, H, W), blend (N, H, W, C) or None)`.
+
+    Every tier array has a leading view axis N; `dconst` is `(N, 2)`.
+    """
+
+    @jax.custom_vjp
+    def run(tiers, dconst):
+        out = jax.lax.map(lambda a: _forward_view(cfg, *a), (tiers, dconst))
+        return out["logt"], out.get("blend")
+
+    def fwd(tiers, dconst):
+        out = jax.lax.map(lambda a: _forward_view(cfg, *a), (tiers, dconst))
+        return (out["logt"], out.get("blend")), (tiers, dconst, out)
+
+    def bwd(res, g):
+        tiers, dconst, out = res
+        g_logt, g_blend = g
+        res_b = {k: v for k, v in out.items() if k != "logt"}
+
+        def one(a):
+            t, d, r, gl, gb = a
+            return _backward_view(cfg, t, d, r, gl, gb)
+
+        grads = jax.lax.map(one, (tiers, dconst, res_b, g_logt, g_blend))
+        return grads, None
+
+    run.defvjp(fwd, bwd)
+    return run(tiers, dconst)
+
+

@@ -1,0 +1,117 @@
+"""Test-only dense soft rasterizer: every pixel against every face, plain autodiff.
+
+Written independently of jaxgenus/_render.py and _splat.py from the model in
+docs/rendering.md: barycentric depth interpolation instead of the plane form,
+a per-pixel log-sum-exp and no windows, compaction or custom VJP. Only for tiny
+scenes (it materializes N x H x W x F arrays).
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+
+CUT = math.log(1e4)
+
+
+def _seg_d2(px, py, ax, ay, bx, by):
+    ex, ey = bx - ax, by - ay
+    l2 = ex * ex + ey * ey
+    ok = l2 > 1e-20
+    il = jnp.where(ok, 1.0 / jnp.where(ok, l2, 1.0), 0.0)
+    t = jnp.clip(((px - ax) * ex + (py - ay) * ey) * il, 0.0, 1.0)
+    dx, dy = px - ax - t * ex, py - ay - t * ey
+    return dx * dx + dy * dy
+
+
+def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True, background=None,
+                 light=None, ambient=0.3):
+    bgs = {"normal": jnp.zeros(3), "depth": jnp.zeros(1), "shaded": jnp.zeros(1)}
+    for k, v in (background or {}).items():
+        bgs[k] = jnp.atleast_1d(jnp.asarray(v, jnp.float32))
+    dt = mesh.vertices.dtype
+    h, w = cameras.height, cameras.width
+    verts = mesh.vertices
+    tri_w = verts[mesh.faces]  # (F,3,3)
+    cr = jnp.cross(tri_w[:, 1] - tri_w[:, 0], tri_w[:, 2] - tri_w[:, 0])
+    n2 = jnp.sum(cr * cr, -1, keepdims=True)
+    ok = n2 > jnp.finfo(dt).tiny
+    nrm = jnp.where(ok, cr / jnp.sqrt(jnp.where(ok, n2, 1.0)), 0.0)
+    nrm = jnp.where(mesh.face_mask[:, None], nrm, 0.0)
+
+    cols = jnp.arange(w, dtype=dt) + 0.5
+    rows = jnp.arange(h, dtype=dt) + 0.5
+    py, px = jnp.meshgrid(rows, cols, indexing="ij")
+    px = px[..., None]
+    py = py[..., None]  # (H, W, 1) against faces (F,)
+
+    outs = []
+    for n in range(len(cameras)):
+        R = cameras.rotation[n].astype(dt)
+        t = cameras.translation[n].astype(dt)
+        xc = verts @ R.T + t
+        tri = xc[mesh.faces]
+        z = tri[..., 2]
+        zs = jnp.where(z > znear, z, 1.0)
+        u = tri[..., 0] / zs * cameras.focal[n, 0] + cameras.principal_point[n, 0]
+        v = tri[..., 1] / zs * cameras.focal[n, 1] + cameras.principal_point[n, 1]
+        valid = mesh.face_mask & jnp.all(z > znear, -1)
+        if cull:
+            nc = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            valid = valid & (jnp.sum(nc * tri[:, 0], -1) < 0)
+        zv = jax.lax.stop_gradient(z)
+        zmin = jnp.min(jnp.where(valid[:, None], zv, jnp.inf))
+        zmax = jnp.max(jnp.where(valid[:, None], zv, -jnp.inf))
+        anyv = jnp.any(valid)
+        zmin = jnp.where(anyv, zmin, 1.0)
+        zmax = jnp.where(anyv, zmax, 1.0)
+        scale = jnp.maximum(1 / zmin - 1 / zmax, 1e-6 / zmin)
+        q = jnp.where(valid[:, None], (1 / zs - 1 / zmax) / scale, 0.0)  # (F,3)
+
+        d2 = jnp.minimum(
+            _seg_d2(px, py, u[:, 0], v[:, 0], u[:, 1], v[:, 1]),
+            jnp.minimum(_seg_d2(px, py, u[:, 1], v[:, 1], u[:, 2], v[:, 2]),
+                        _seg_d2(px, py, u[:, 2], v[:, 2], u[:, 0], v[:, 0])),
+        )
+        # barycentrics from edge functions
+        def edge(i, j):
+            return (u[:, j] - u[:, i]) * (py - v[:, i]) - (v[:, j] - v[:, i]) * (px - u[:, i])
+        w0, w1, w2 = edge(1, 2), edge(2, 0), edge(0, 1)
+        area = (u[:, 1] - u[:, 0]) * (v[:, 2] - v[:, 0]) - (v[:, 1] - v[:, 0]) * (u[:, 2] - u[:, 0])
+        sg = jnp.sign(area)
+        inside = (w0 * sg > 0) & (w1 * sg > 0) & (w2 * sg > 0)
+        aok = jnp.abs(area) > 1e-12
+        ia = jnp.where(aok, 1.0 / jnp.where(aok, area, 1.0), 0.0)
+        qb = jnp.where(aok, (w0 * q[:, 0] + w1 * q[:, 1] + w2 * q[:, 2]) * ia, jnp.mean(q, -1))
+        qp = jnp.clip(qb, jnp.min(q, -1), jnp.max(q, -1))
+
+        x = jnp.where(inside, d2, -d2) / sigma
+        live = valid & (inside | (d2 <= sigma * CUT))
+        log1m = jnp.where(live, -jax.nn.softplus(x), 0.0)
+        res = []
+        for c in channels:
+            if c == "alpha":
+                res.append((1.0 - jnp.exp(jnp.sum(log1m, -1)))[..., None])
+                continue
+            score = jnp.where(live, -jax.nn.softplus(-x) + qp / gamma, -jnp.inf)
+            sb = jnp.full((h, w, 1), -1.0 / gamma, dt)
+            allsc = jnp.concatenate([score, sb], -1)
+            m = jax.lax.stop_gradient(jnp.max(allsc, -1, keepdims=True))
+            wts = jnp.exp(allsc - m)
+            wts = wts / jnp.sum(wts, -1, keepdims=True)
+            if c == "normal":
+                val = jnp.broadcast_to(nrm, (h, w) + nrm.shape)
+            elif c == "shaded":
+                l = -R[2] if light is None else jnp.asarray(light, dt) / jnp.linalg.norm(jnp.asarray(light, dt))
+                s = ambient + (1 - ambient) * jnp.maximum(nrm @ l, 0.0)
+                val = jnp.broadcast_to(s[:, None], (h, w, s.shape[0], 1))
+            else:  # depth
+                zp = 1.0 / (qp * scale + 1.0 / zmax)
+                val = zp[..., None]
+            bgv = jnp.broadcast_to(bgs[c], (h, w, 1, val.shape[-1]))
+            vals = jnp.concatenate([val, bgv], axis=2)
+            res.append(jnp.einsum("hwf,hwfc->hwc", wts, vals))
+        outs.append(jnp.concatenate(res, -1))
+    return jnp.stack(outs)

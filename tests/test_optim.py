@@ -1,0 +1,354 @@
+"""Energies, large-steps solve, uniform Adam and optimize_block against independent references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spl
+import trimesh
+
+import jax
+import jax.numpy as jnp
+
+import jaxgenus as jg
+from jaxgenus._energies import LossWeights
+from _soft_silhouette import soft_silhouette
+
+
+def _sphere(subdivisions=2, radius=1.0, capacity=None):
+    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
+    v, f = np.asarray(m.vertices), np.asarray(m.faces)
+    return v, f, (jg.Mesh.from_numpy(v, f, capacity=capacity) if capacity else None)
+
+
+def _scipy_laplacian(f, n):
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    a = sp.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+    a = ((a + a.T) > 0).astype(np.float64)
+    return (sp.diags(np.asarray(a.sum(axis=1)).ravel()) - a).tocsc()
+
+
+def _fd_check(f, x, direction_seed=0, eps=1e-6, rtol=1e-5):
+    """Directional finite difference vs the autodiff gradient (x64)."""
+    d = np.random.default_rng(direction_seed).normal(size=x.shape)
+    g = np.asarray(jax.grad(f)(jnp.asarray(x)))
+    fd = (float(f(jnp.asarray(x + eps * d))) - float(f(jnp.asarray(x - eps * d)))) / (2 * eps)
+    assert np.isfinite(g).all()
+    np.testing.assert_allclose(np.sum(g * d), fd, rtol=rtol, atol=1e-9)
+    return g
+
+
+# ---------------------------------------------------------------- operators / energies
+
+
+def test_uniform_laplacian_matches_scipy_on_padded_mesh():
+    v, f, mesh = _sphere(2, capacity=(200, 400))
+    with jax.enable_x64(True):
+        lap = jg.uniform_laplacian(jnp.asarray(np.asarray(mesh.faces)), mesh.vertex_capacity)
+        dense = np.asarray(lap.todense())
+    ref = _scipy_laplacian(f, len(v)).toarray()
+    n = len(v)
+    np.testing.assert_allclose(dense[:n, :n], ref, atol=1e-12)
+    assert np.all(dense[n:] == 0) and np.all(dense[:, n:] == 0)  # padded vertices isolated
+    np.testing.assert_allclose(np.asarray(lap.degree)[:n], ref.diagonal())
+    with pytest.raises(ValueError, match="n_vertices"):
+        jg.uniform_laplacian(mesh.faces, 3.5)
+    with pytest.raises(ValueError, match="faces"):
+        jg.uniform_laplacian(mesh.faces[:, :2], 10)
+
+
+def test_bilaplacian_energy_matches_scipy_and_gradient():
+    v, f, _ = _sphere(1)
+    rng = np.random.default_rng(1)
+    x = v + 0.05 * rng.normal(size=v.shape)
+    lx = _scipy_laplacian(f, len(v)) @ x
+    with jax.enable_x64(True):
+        faces = jnp.asarray(np.vstack([f, np.zeros((7, 3), int)]), jnp.int32)  # padded faces
+        xp = np.vstack([x, np.zeros((5, 3))])  # padded vertices
+        e = float(jg.bilaplacian_energy(jnp.asarray(xp), faces))
+        np.testing.assert_allclose(e, np.sum(lx * lx), rtol=1e-12)
+        g = _fd_check(lambda y: jg.bilaplacian_energy(y, faces), xp)
+        np.testing.assert_allclose(g[: len(v)], 2 * (_scipy_laplacian(f, len(v)) @ lx), rtol=1e-9, atol=1e-12)
+        assert np.all(g[len(v) :] == 0)
+
+
+def test_inversion_penalty_zero_at_rest_positive_after_fold_and_gradient():
+    v, f, _ = _sphere(1)
+    with jax.enable_x64(True):
+        faces = jnp.asarray(np.vstack([f, np.zeros((4, 3), int)]), jnp.int32)
+        rest = jnp.asarray(v)
+        assert float(jg.inversion_penalty(rest, rest, faces)) == 0.0
+        # small deformations keep it at zero
+        wobble = v + 0.01 * np.random.default_rng(0).normal(size=v.shape)
+        assert float(jg.inversion_penalty(jnp.asarray(wobble), rest, faces)) == 0.0
+        # fold one triangle: push vertex a of face 0 through the opposite edge's line, in-plane
+        a, b, c = f[0]
+        folded = v.copy()
+        folded[a] = v[a] + 2.2 * ((v[b] + v[c]) / 2 - v[a])
+        p = float(jg.inversion_penalty(jnp.asarray(folded), rest, faces))
+        n, n0 = np.cross(folded[b] - folded[a], folded[c] - folded[a]), np.cross(v[b] - v[a], v[c] - v[a])
+        det0 = n @ n0 / (n0 @ n0)
+        assert det0 < 0 and p >= det0**2 * (1 - 1e-9) > 0
+        _fd_check(lambda y: jg.inversion_penalty(y, rest, faces), folded)
+
+
+def test_image_loss_values_and_gradient():
+    rng = np.random.default_rng(2)
+    with jax.enable_x64(True):
+        tgt_a = jnp.asarray((rng.random((2, 5, 6, 1)) > 0.5).astype(float))
+        ren_a = rng.random((2, 5, 6, 1))
+        w = LossWeights(alpha=0.7, normal=2.0)
+        assert np.isclose(float(jg.image_loss(jnp.asarray(ren_a), tgt_a, weights=w)), 0.7 * np.mean(np.abs(ren_a - tgt_a)))
+        _fd_check(lambda r: jg.image_loss(r, tgt_a, weights=w), ren_a)
+        # RGBA target: RGB = (n + 1) / 2, normals only where the target alpha is set
+        rgb = rng.random((2, 5, 6, 3))
+        alpha = (rng.random((2, 5, 6, 1)) > 0.5).astype(float)
+        tgt = jnp.asarray(np.concatenate([rgb, alpha], -1))
+        ren = np.concatenate([rng.random((2, 5, 6, 1)), rng.uniform(-1, 1, (2, 5, 6, 3))], -1)
+        ref = 0.7 * np.mean(np.abs(ren[..., :1] - alpha)) + 2.0 * np.mean(alpha * np.abs((ren[..., 1:] + 1) / 2 - rgb))
+        assert np.isclose(float(jg.image_loss(jnp.asarray(ren), tgt, weights=w)), ref)
+        _fd_check(lambda r: jg.image_loss(r, tgt, weights=w), ren)
+        # weight 0 skips the term
+        ref_n = np.mean(alpha * np.abs((ren[..., 1:] + 1) / 2 - rgb))
+        assert np.isclose(float(jg.image_loss(jnp.asarray(ren), tgt, weights=LossWeights(alpha=0.0))), ref_n)
+    with pytest.raises(ValueError, match="target"):
+        jg.image_loss(jnp.zeros((1, 2, 2, 3)), jnp.zeros((1, 2, 2, 3)))
+    with pytest.raises(ValueError, match="weights.alpha"):
+        LossWeights(alpha=-1.0)
+
+
+def test_objective_gradient_with_test_renderer():
+    v, f, _ = _sphere(1, radius=0.8)
+    cams = jg.sphere_cameras(2, radius=3.0, resolution=12)
+    with jax.enable_x64(True):
+        mesh = jg.Mesh.from_numpy(v, f, capacity=(50, 96))
+        target = soft_silhouette(jg.Mesh.from_numpy(v * [1.2, 0.8, 1.0], f, capacity=(50, 96)), cams)
+        rest = mesh.vertices
+        w = LossWeights(bilaplacian=1e-2, inversion=10.0)
+
+        def total(x):
+            m = jg.Mesh(x, mesh.faces, mesh.n_vertices, mesh.n_faces)
+            return jg.objective(m, cams, target, rest, weights=w, renderer=soft_silhouette)[0]
+
+        x = np.asarray(rest) + 0.02 * np.random.default_rng(3).normal(size=rest.shape) * np.asarray(mesh.vertex_mask)[:, None]
+        g = _fd_check(total, x, eps=1e-6, rtol=1e-5)
+        assert np.all(g[len(v) :] == 0)
+        _, terms = jg.objective(jg.Mesh(jnp.asarray(x), mesh.faces, mesh.n_vertices, mesh.n_faces), cams, target, rest,
+                                weights=w, renderer=soft_silhouette)
+        assert set(terms) == {"alpha", "bilaplacian", "inversion"}
+
+
+# ---------------------------------------------------------------- large steps
+
+
+@pytest.mark.parametrize("lam", [1.0, 19.0, 100.0, 1e3, 1e4])
+def test_largesteps_solve_matches_spsolve(lam):
+    v, f, _ = _sphere(2)
+    n, vcap = len(v), len(v) + 6
+    rng = np.random.default_rng(4)
+    b = np.zeros((vcap, 3))
+    b[:n] = v + 0.1 * rng.normal(size=v.shape)
+    b[n:] = rng.normal(size=(vcap - n, 3))  # padded rows: identity, x = b there
+    faces = np.vstack([f, np.zeros((10, 3), int)])
+    ref = spl.spsolve((sp.eye(n) + lam * _scipy_laplacian(f, n)).tocsc(), b[:n])
+    with jax.enable_x64(True):
+        lap = jg.uniform_laplacian(jnp.asarray(faces, jnp.int32), vcap)
+        x, info = jg.largesteps_solve(lap, jnp.asarray(b), lam)
+        assert bool(info.converged) and float(info.residual) <= 1e-6 and int(info.iterations) > 0
+        np.testing.assert_allclose(np.asarray(x)[:n], ref, atol=1e-6 * np.abs(ref).max())
+        np.testing.assert_allclose(np.asarray(x)[n:], b[n:], atol=1e-9)
+        # warm start at the solution: (almost) no iterations
+        _, info2 = jg.largesteps_solve(lap, jnp.asarray(b), lam, x)
+        assert int(info2.iterations) <= 1
+    # float32: same solution to single precision
+    lap32 = jg.uniform_laplacian(jnp.asarray(faces, jnp.int32), vcap)
+    x32, info32 = jg.largesteps_solve(lap32, jnp.asarray(b, jnp.float32), lam)
+    assert bool(info32.converged) and np.all(np.isfinite(np.asarray(x32)))
+    np.testing.assert_allclose(np.asarray(x32)[:n], ref, atol=2e-5 * np.abs(ref).max())
+
+
+def test_largesteps_nonconvergence_is_reported():
+    v, f, _ = _sphere(2)
+    lap = jg.uniform_laplacian(jnp.asarray(f, jnp.int32), len(v))
+    x, info = jg.largesteps_solve(lap, jnp.asarray(v, jnp.float32), 1e4, max_iter=3)
+    assert not bool(info.converged) and int(info.iterations) == 3 and float(info.residual) > 1e-3
+    assert np.all(np.isfinite(np.asarray(x)))
+    # a zero right-hand side: x = 0 at once, whatever the warm start
+    x, info = jg.largesteps_solve(lap, jnp.zeros((len(v), 3)), 19.0, jnp.ones((len(v), 3)))
+    assert int(info.iterations) == 0 and bool(info.converged) and np.all(np.asarray(x) == 0)
+    # a non-finite right-hand side is never reported as converged
+    b = jnp.asarray(v, jnp.float32).at[3, 1].set(jnp.nan)
+    _, info = jg.largesteps_solve(lap, b, 19.0)
+    assert not bool(info.converged)
+
+
+def test_differential_roundtrip_gradient_and_alpha_form():
+    v, f, _ = _sphere(1)
+    n = len(v)
+    lam = 19.0
+    a = (sp.eye(n) + lam * _scipy_laplacian(f, n)).tocsc()
+    w = np.random.default_rng(5).normal(size=(n, 3))
+    with jax.enable_x64(True):
+        lap = jg.uniform_laplacian(jnp.asarray(f, jnp.int32), n)
+        u = jg.to_differential(lap, jnp.asarray(v), lam)
+        np.testing.assert_allclose(np.asarray(u), a @ v, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(np.asarray(jg.from_differential(lap, u, lam)), v, atol=1e-7)
+        g = jax.grad(lambda u: jnp.sum(jnp.asarray(w) * jg.from_differential(lap, u, lam)))(u)
+        np.testing.assert_allclose(np.asarray(g), spl.spsolve(a, w), atol=1e-7)
+    alpha = 0.95
+    lam_a = jg.lambda_from_alpha(alpha)
+    lp = _scipy_laplacian(f, n)
+    np.testing.assert_allclose(
+        ((1 - alpha) * sp.eye(n) + alpha * lp).toarray(), (1 - alpha) * (sp.eye(n) + lam_a * lp).toarray(), atol=1e-12
+    )
+    with pytest.raises(ValueError, match="alpha"):
+        jg.lambda_from_alpha(1.0)
+
+
+# ---------------------------------------------------------------- uniform Adam
+
+
+def _numpy_adam_uniform(params, grads_seq, lr, b1, b2, eps):
+    """Direct numpy transcription of Nicolet et al.'s AdamUniform step."""
+    p = [np.array(x, np.float64) for x in params]
+    m1 = [np.zeros_like(x) for x in p]
+    m2 = [np.zeros_like(x) for x in p]
+    for t, grads in enumerate(grads_seq, start=1):
+        for i, g in enumerate(grads):
+            m1[i] = b1 * m1[i] + (1 - b1) * g
+            m2[i] = b2 * m2[i] + (1 - b2) * g * g
+            mh = m1[i] / (1 - b1**t)
+            vh = m2[i] / (1 - b2**t)
+            p[i] = p[i] - lr * mh / (np.sqrt(vh).max() + eps)
+    return p
+
+
+def test_uniform_adam_matches_numpy_reference():
+    rng = np.random.default_rng(6)
+    params = [rng.normal(size=(7, 3)), rng.normal(size=(4,))]
+    grads_seq = [[rng.normal(size=(7, 3)), 10 * rng.normal(size=(4,))] for _ in range(5)]
+    grads_seq[2][0][3] = 0.0
+    ref = _numpy_adam_uniform(params, grads_seq, 0.1, 0.8, 0.99, 1e-8)
+    with jax.enable_x64(True):
+        opt = jg.uniform_adam(0.1, b1=0.8, b2=0.99, eps=1e-8)
+        p = {"a": jnp.asarray(params[0]), "b": jnp.asarray(params[1])}
+        state = opt.init(p)
+        update = jax.jit(opt.update)
+        for grads in grads_seq:
+            upd, state = update({"a": jnp.asarray(grads[0]), "b": jnp.asarray(grads[1])}, state, p)
+            p = jax.tree.map(lambda x, y: x + y, p, upd)
+    np.testing.assert_allclose(np.asarray(p["a"]), ref[0], rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(p["b"]), ref[1], rtol=1e-12)
+    assert int(state.count) == 5
+    # entries with always-zero gradient (padding) keep zero moments and never move
+    g = jnp.asarray(np.vstack([rng.normal(size=(5, 3)), np.zeros((3, 3))]), jnp.float32)
+    st = opt.init(g)
+    upd, st = opt.update(g, st)
+    assert np.all(np.asarray(upd)[5:] == 0) and np.all(np.asarray(st.nu)[5:] == 0)
+    with pytest.raises(ValueError, match="b1"):
+        jg.uniform_adam(0.1, b1=1.0)
+
+
+def test_uniform_adam_in_optimistix_optax_minimiser():
+    optx = pytest.importorskip("optimistix")
+    target = jnp.asarray([1.0, -2.0, 3.0])
+
+    def fn(y, args):
+        return jnp.sum((y - target) ** 2)
+
+    solver = optx.OptaxMinimiser(jg.uniform_adam(0.05), rtol=1e-4, atol=1e-4)
+    sol = optx.minimise(fn, solver, jnp.zeros(3), max_steps=2000, throw=False)
+    np.testing.assert_allclose(np.asarray(sol.value), np.asarray(target), atol=5e-2)
+
+
+# ---------------------------------------------------------------- optimize_block
+
+
+def _fit_problem(resolution=24, n_views=8):
+    v, f, mesh = _sphere(2, radius=0.8, capacity=(200, 384))
+    cams = jg.sphere_cameras(n_views, radius=3.0, fov_deg=40.0, resolution=resolution)
+    target_mesh = jg.Mesh.from_numpy(v * np.array([1.25, 0.7, 0.9]), f)
+    return mesh, cams, soft_silhouette(target_mesh, cams)
+
+
+def test_fixed_topology_fit_sphere_to_ellipsoid():
+    """RGBA targets (RGB = (n + 1) / 2, A = silhouette) rendered by `jg.render`, fitted through `jg.render`."""
+    v, f, mesh = _sphere(2, radius=0.8, capacity=(200, 384))
+    cams = jg.sphere_cameras(6, radius=3.0, fov_deg=40.0, resolution=24)
+    images = jg.render(jg.Mesh.from_numpy(v * np.array([1.25, 0.7, 0.9]), f), cams, channels=("alpha", "normal"))
+    targets = jnp.concatenate([(images[..., 1:] + 1.0) / 2.0, images[..., :1]], axis=-1)
+    plan = jg.plan_render(mesh, cams, face_margin=1.5)
+    opts = jg.OptimizeOptions(learning_rate=0.05, render_kwargs=(("plan", plan),))
+    x_in = np.array(mesh.vertices)
+    state = jg.init_optimizer_state(mesh, jax.random.key(0))
+    records = []
+    for _ in range(4):
+        state, rec = jg.optimize_block(state, cams, targets, n_steps=30, options=opts)
+        records.append(jax.tree.map(np.asarray, rec))
+    rec = {k: np.concatenate([r[k] for r in records]) for k in jg.RECORD_KEYS}
+    assert all(rec[k].shape == (120,) for k in jg.RECORD_KEYS)
+    assert np.all(rec["status"] == 0) and np.all(np.isfinite(rec["loss"]))
+    np.testing.assert_allclose(rec["loss"], rec["alpha"] + rec["normal"] + rec["inversion"], rtol=1e-5)
+    rendered = jg.render(state.mesh, cams, channels=("alpha", "normal"), plan=plan)
+    final = float(jg.image_loss(rendered, targets))
+    assert final <= rec["loss"][0] / 10.0, (rec["loss"][0], final)
+    assert rec["inverted_faces"].max() == 0
+    n = np.asarray(jg.face_normals(state.mesh))[: len(f)]
+    n0 = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    assert np.all(np.sum(n * n0, axis=1) > 0)  # every triangle keeps its orientation
+    assert int(state.step) == 120 and int(state.adam.count) == 120
+    x = np.asarray(state.mesh.vertices)
+    assert np.all(x[int(mesh.n_vertices) :] == 0)  # padding untouched
+    assert np.all(rec["cg_iterations_forward"] > 0) and rec["cg_residual"].max() < 1e-4
+    np.testing.assert_array_equal(np.asarray(mesh.vertices), x_in)  # the input mesh survives donation
+
+
+def test_optimize_block_compiles_once_per_bucket_and_samples_views():
+    from jaxgenus._optimize import _optimize_block_jit
+
+    mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
+    opts = jg.OptimizeOptions(learning_rate=0.05, renderer=soft_silhouette, views_per_step=2)
+    before = _optimize_block_jit._cache_size()
+    other = jg.Mesh.from_numpy(*_sphere(1, radius=0.8)[:2], capacity=(200, 384))  # same bucket, other mesh
+    for m in (mesh, other, mesh):
+        state = jg.init_optimizer_state(m, jax.random.key(1))
+        for _ in range(2):
+            state, rec = jg.optimize_block(state, cams, targets, n_steps=3, options=opts)
+    assert _optimize_block_jit._cache_size() == before + 1
+    # the same key gives the same view samples, another key other ones
+    s1, r1 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3, options=opts)
+    s2, r2 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3, options=opts)
+    s3, r3 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(8)), cams, targets, n_steps=3, options=opts)
+    np.testing.assert_array_equal(np.asarray(r1["loss"]), np.asarray(r2["loss"]))
+    assert not np.array_equal(np.asarray(r1["loss"]), np.asarray(r3["loss"]))
+    with pytest.raises(ValueError, match="views_per_step"):
+        jg.optimize_block(s1, cams, targets, n_steps=1, options=jg.OptimizeOptions(views_per_step=7))
+    with pytest.raises(ValueError, match="n_steps"):
+        jg.optimize_block(s1, cams, targets, n_steps=0)
+    with pytest.raises(ValueError, match="targets"):
+        jg.optimize_block(s1, cams, targets[:3], n_steps=1)
+
+
+def test_optimize_block_flags_nonfinite_step_and_keeps_state():
+    mesh, cams, targets = _fit_problem(resolution=8, n_views=2)
+
+    def nan_renderer(mesh, cameras, *, channels):
+        return soft_silhouette(mesh, cameras, channels=channels) * jnp.nan
+
+    state = jg.init_optimizer_state(mesh, jax.random.key(0))
+    x0 = np.asarray(state.mesh.vertices)
+    opts = jg.OptimizeOptions(renderer=nan_renderer)
+    state, rec = jg.optimize_block(state, cams, targets, n_steps=2, options=opts)
+    assert np.all(np.asarray(rec["status"]) == 2)
+    np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)
+    assert np.all(np.isfinite(np.asarray(state.adam.mu)))
+
+    def nan_gradient_renderer(mesh, cameras, *, channels):  # finite image, NaN gradient (d sqrt(0))
+        spike = 0.0 * jnp.sum(jnp.sqrt(jnp.abs(mesh.vertices)))
+        return soft_silhouette(mesh, cameras, channels=channels) + spike
+
+    opts = jg.OptimizeOptions(renderer=nan_gradient_renderer)
+    state, rec = jg.optimize_block(state, cams, targets, n_steps=2, options=opts)
+    assert np.all(np.isfinite(np.asarray(rec["loss"]))) and np.all(np.asarray(rec["status"]) == 2)
+    np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)
