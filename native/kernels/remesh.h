@@ -1,0 +1,62 @@
+// XLA-free remeshing kernel: raw buffers in, raw buffers out, a status back.
+// Every input is validated; nothing is thrown or aborted across this boundary.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace jaxgenus {
+
+enum class RemeshStatus : int32_t {
+  ok = 0,
+  capacity_exceeded = 1,  // the sizing was coarsened to fit the capacity (output valid) or,
+                          // if even that failed, the output is the unchanged input
+  invalid_input = 2,      // output is the unchanged input
+  topology_changed = 3,   // output is the unchanged input (never expected)
+};
+
+// Lengths are absolute; a value <= 0 selects the documented default.
+struct RemeshParams {
+  float target_edge_length = 0;  // <= 0: mean edge length of the input (h)
+  int32_t iterations = 5;
+  int32_t adaptive = 0;          // 1: curvature-adaptive sizing
+  float approx_error = 0;        // adaptive eps; <= 0: 0.05 h
+  float min_edge_length = 0;     // adaptive clamp; <= 0: 0.25 h
+  float max_edge_length = 0;     // adaptive clamp; <= 0: 4 h
+  float coarsen_factor = 0;      // V-cycle coarsening target factor; <= 0: 2 if adaptive else 1 (off)
+  int32_t smoothing_steps = 1;   // tangential smoothing steps per iteration
+  float smoothing_lambda = 1;    // step size of tangential smoothing, in (0, 1]
+  int32_t project = 1;           // project onto the input surface after smoothing
+};
+
+struct RemeshReport {
+  RemeshStatus status = RemeshStatus::invalid_input;
+  int32_t n_vertices = 0, n_faces = 0;
+  int64_t faces_estimated = 0;   // faces the unconstrained sizing field asks for
+  int64_t chi_before = 0, chi_after = 0;
+  double target_edge_length = 0; // h actually used
+  int64_t splits = 0, collapses = 0, flips = 0;
+  std::string message;           // reason when status != ok
+};
+
+// Capacity-buffer entry (the XLA FFI path). V: (vcap, 3), F: (fcap, 3),
+// attr: (vcap, n_attr) or null; nv/nf live counts. Outputs have the same
+// shapes; rows past the new counts are zero. Outputs may alias inputs.
+// Carried attributes: a vertex created by a split gets the mean of the edge's
+// two endpoints, a collapse leaves the mean of the two merged vertices, and
+// flips and smoothing leave them unchanged.
+RemeshReport remesh_buffers(const float* V, int64_t vcap, const int32_t* F, int64_t fcap,
+                            int64_t nv, int64_t nf, const float* attr, int64_t n_attr,
+                            const RemeshParams& params, float* V_out, int32_t* F_out,
+                            float* attr_out);
+
+// Growable entry (the numpy path): no capacity, at most face_budget faces.
+RemeshReport remesh_arrays(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                           const float* attr, int64_t n_attr, const RemeshParams& params,
+                           int64_t face_budget, std::vector<double>* V_out,
+                           std::vector<int32_t>* F_out, std::vector<float>* attr_out);
+
+const char* remesh_status_name(RemeshStatus s);
+
+}  // namespace jaxgenus
