@@ -17,4 +17,15 @@ from jaxgenus._cameras import (
     sphere_cameras,
 )
 
+from jaxgenus._io import load_mesh, save_mesh
+from jaxgenus._topology import (
+    MeshReport,
+    component_genera,
+    connected_components,
+    euler_characteristic,
+    genus,
+    is_closed_manifold,
+    mesh_report,
+)
+
 __version__ = "0.1.0"
