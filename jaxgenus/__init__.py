@@ -27,5 +27,6 @@ from jaxgenus._topology import (
     is_closed_manifold,
     mesh_report,
 )
+from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 
 __version__ = "0.1.0"

@@ -104,6 +104,17 @@ int Mesh::valence(VertexId v) const {
   return n;
 }
 
+HalfedgeId Mesh::find_halfedge(VertexId a, VertexId b) const {
+  if (is_dead(a)) return {};
+  const HalfedgeId start = out(a);
+  HalfedgeId g = start;
+  do {
+    if (to(g) == b) return g;
+    g = rotate(g);
+  } while (g != start);
+  return {};
+}
+
 Vec3 Mesh::face_normal(FaceId f) const {
   const Vec3& a = pos[origin[3 * f.idx]];
   const Vec3& b = pos[origin[3 * f.idx + 1]];

@@ -97,6 +97,8 @@ class Mesh {
   int64_t euler_characteristic() const;  // V - E + F of the live part (E = 3F/2)
 
   int valence(VertexId v) const;
+  // The half-edge a->b, or an invalid id when a and b are not adjacent (or a is dead).
+  HalfedgeId find_halfedge(VertexId a, VertexId b) const;
   Vec3 face_normal(FaceId f) const;      // unnormalised, |n| = 2 * area
   Vec3 vertex_normal(VertexId v) const;  // area-weighted, unit length
   double length(HalfedgeId h) const { return norm(pos[to(h).idx] - pos[from(h).idx]); }

@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 #include <memory>
+#include <utility>
+#include <vector>
 
 #include "halfedge/operations.h"
 
@@ -22,37 +24,58 @@ bool checked(const Mesh& m, const RemeshSettings& s, int64_t chi, const char* op
   return false;
 }
 
-// Splits every edge longer than 4/3 of its target (sweeps until none is left).
+// Edges (as vertex pairs) whose length / target ratio passes `keep`, sorted
+// by that ratio (descending when `longest_first`). Edges are named by their
+// endpoints because operations rewrite the half-edge slots of their faces.
+template <typename Keep>
+std::vector<std::pair<VertexId, VertexId>> candidates(const Mesh& m, double scale, bool longest_first,
+                                                      Keep keep) {
+  std::vector<std::pair<double, int32_t>> ratio;
+  for (int32_t h = 0; h < m.halfedge_slots(); ++h) {
+    if (m.is_dead(Mesh::face(HalfedgeId{h})) || m.twin[h] < h) continue;
+    const double r = m.length(HalfedgeId{h}) / (scale * edge_target(m, HalfedgeId{h}));
+    if (keep(r)) ratio.push_back({longest_first ? -r : r, h});
+  }
+  std::sort(ratio.begin(), ratio.end());
+  std::vector<std::pair<VertexId, VertexId>> out;
+  out.reserve(ratio.size());
+  for (const auto& [r, h] : ratio) out.push_back({m.from(HalfedgeId{h}), m.to(HalfedgeId{h})});
+  return out;
+}
+
+// Splits edges longer than 4/3 of their target, longest first, in sweeps over
+// the edges present at the start of each sweep, until none is left.
 bool split_long_edges(Mesh& m, const RemeshSettings& s, int64_t chi, RemeshOutcome* out) {
-  for (int sweep = 0; sweep < 8; ++sweep) {
+  for (int sweep = 0; sweep < 32; ++sweep) {
+    const auto todo = candidates(m, 1.0, true, [](double r) { return r > 4.0 / 3.0; });
     int64_t n = 0;
-    for (int32_t h = 0; h < m.halfedge_slots(); ++h) {
-      if (m.is_dead(Mesh::face(HalfedgeId{h})) || m.twin[h] < h) continue;
-      if (m.live_faces() + 2 > s.face_budget) return true;
-      const HalfedgeId e{h};
-      if (m.length(e) <= 4.0 / 3.0 * edge_target(m, e) || !is_split_ok(m, e)) continue;
+    for (const auto& [a, b] : todo) {
+      if (m.live_faces() + 2 > s.face_budget) break;
+      const HalfedgeId e = m.find_halfedge(a, b);
+      if (!e.valid() || m.length(e) <= 4.0 / 3.0 * edge_target(m, e) || !is_split_ok(m, e)) continue;
       split(m, e, 0.5);
       ++n;
       if (!checked(m, s, chi, "split", out)) return false;
     }
     out->splits += n;
-    if (n == 0) break;
+    if (n == 0 || m.live_faces() + 2 > s.face_budget) break;
   }
   return true;
 }
 
-// Collapses edges shorter than 4/5 of scale * target to their midpoint when
-// no new edge exceeds 4/3 of scale * target.
+// Collapses edges shorter than 4/5 of scale * target to their midpoint,
+// shortest first, when no new edge exceeds 4/3 of scale * target.
 bool collapse_short_edges(Mesh& m, const RemeshSettings& s, double scale, int64_t chi,
                           RemeshOutcome* out) {
   for (int sweep = 0; sweep < 8; ++sweep) {
+    const auto todo = candidates(m, scale, false, [](double r) { return r < 0.8; });
     int64_t n = 0;
-    for (int32_t h = 0; h < m.halfedge_slots(); ++h) {
-      if (m.is_dead(Mesh::face(HalfedgeId{h})) || m.twin[h] < h) continue;
-      const HalfedgeId e{h};
+    for (const auto& [a, b] : todo) {
+      const HalfedgeId e = m.find_halfedge(a, b);
+      if (!e.valid()) continue;
       const double target = scale * edge_target(m, e);
       if (m.length(e) >= 0.8 * target) continue;
-      const Vec3 mid = (m.pos[m.from(e).idx] + m.pos[m.to(e).idx]) * 0.5;
+      const Vec3 mid = (m.pos[a.idx] + m.pos[b.idx]) * 0.5;
       if (!is_collapse_ok(m, e, mid, 4.0 / 3.0 * target)) continue;
       collapse(m, e, mid);
       ++n;

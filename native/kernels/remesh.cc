@@ -2,6 +2,7 @@
 // output checks (validate() + chi + components) before anything is written.
 #include "kernels/remesh.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <exception>
@@ -17,7 +18,7 @@ bool is_finite(float x) { return std::isfinite(x); }
 RemeshReport run(const he::Mesh& input, const RemeshParams& p, int64_t face_budget,
                  he::Mesh* result) {
   RemeshReport r;
-  r.status = RemeshStatus::invalid_input;
+  r.status = Status::kInvalidInput;
   if (p.iterations < 0 || p.iterations > 1000 || p.smoothing_steps < 0 || p.smoothing_steps > 100 ||
       !(p.smoothing_lambda > 0 && p.smoothing_lambda <= 1) || !is_finite(p.target_edge_length) ||
       !is_finite(p.approx_error) || !is_finite(p.min_edge_length) ||
@@ -64,11 +65,11 @@ RemeshReport run(const he::Mesh& input, const RemeshParams& p, int64_t face_budg
   if (err.empty() && he::connected_components(*result) != he::connected_components(input))
     err = "number of connected components changed";
   if (!err.empty()) {
-    r.status = RemeshStatus::topology_changed;
+    r.status = Status::kTopologyChanged;
     r.message = err;
     return r;
   }
-  r.status = o.budget_limited ? RemeshStatus::capacity_exceeded : RemeshStatus::ok;
+  r.status = o.budget_limited ? Status::kCapacityExceeded : Status::kOk;
   if (o.budget_limited) r.message = "sizing coarsened to fit the face capacity";
   r.n_vertices = result->live_vertices();
   r.n_faces = result->live_faces();
@@ -77,22 +78,35 @@ RemeshReport run(const he::Mesh& input, const RemeshParams& p, int64_t face_budg
 
 }  // namespace
 
-const char* remesh_status_name(RemeshStatus s) {
+const char* remesh_status_name(Status s) {
   switch (s) {
-    case RemeshStatus::ok: return "ok";
-    case RemeshStatus::capacity_exceeded: return "capacity_exceeded";
-    case RemeshStatus::invalid_input: return "invalid_input";
-    case RemeshStatus::topology_changed: return "topology_changed";
+    case Status::kOk: return "ok";
+    case Status::kCapacityExceeded: return "capacity_exceeded";
+    case Status::kInvalidInput: return "invalid_input";
+    case Status::kTopologyChanged: return "topology_changed";
   }
   return "unknown";
 }
 
+void write_remesh_info(const RemeshReport& r, int32_t* info) {
+  auto clamp32 = [](int64_t x) { return int32_t(std::min<int64_t>(std::max<int64_t>(x, INT32_MIN), INT32_MAX)); };
+  info[0] = int32_t(r.status);
+  info[1] = r.n_vertices;
+  info[2] = r.n_faces;
+  info[3] = clamp32(r.faces_estimated);
+  info[4] = clamp32(r.chi_before);
+  info[5] = clamp32(r.chi_after);
+  info[6] = clamp32(r.splits);
+  info[7] = clamp32(r.collapses);
+  info[8] = clamp32(r.flips);
+}
+
 RemeshReport remesh_buffers(const float* V, int64_t vcap, const int32_t* F, int64_t fcap,
                             int64_t nv, int64_t nf, const float* attr, int64_t n_attr,
-                            const RemeshParams& params, float* V_out, int32_t* F_out,
-                            float* attr_out) {
+                            const RemeshParams& params, int64_t face_budget, float* V_out,
+                            int32_t* F_out, float* attr_out) {
   RemeshReport r;
-  auto keep_input = [&](RemeshStatus status, const std::string& msg) {
+  auto keep_input = [&](Status status, const std::string& msg) {
     if (V_out != V && vcap > 0) std::memmove(V_out, V, sizeof(float) * 3 * vcap);
     if (F_out != F && fcap > 0) std::memmove(F_out, F, sizeof(int32_t) * 3 * fcap);
     if (attr_out != attr && vcap > 0 && n_attr > 0)
@@ -111,23 +125,23 @@ RemeshReport remesh_buffers(const float* V, int64_t vcap, const int32_t* F, int6
     return r;  // nothing can be copied safely
   }
   if (nv < 0 || nf < 0 || nv > vcap || nf > fcap)
-    return keep_input(RemeshStatus::invalid_input, "live counts out of range");
+    return keep_input(Status::kInvalidInput, "live counts out of range");
   try {
     std::vector<double> vd(V, V + 3 * nv);
     he::Mesh input;
     const he::BuildStatus b =
         he::Mesh::build(vd.data(), nv, F, nf, n_attr > 0 ? attr : nullptr, int32_t(n_attr), &input);
-    if (b != he::BuildStatus::ok) return keep_input(RemeshStatus::invalid_input, he::build_status_name(b));
+    if (b != he::BuildStatus::ok) return keep_input(Status::kInvalidInput, he::build_status_name(b));
     he::Mesh result;
-    RemeshReport run_r = run(input, params, fcap, &result);
-    if (run_r.status != RemeshStatus::ok && run_r.status != RemeshStatus::capacity_exceeded) {
+    RemeshReport run_r = run(input, params, std::min(face_budget, fcap), &result);
+    if (run_r.status != Status::kOk && run_r.status != Status::kCapacityExceeded) {
       RemeshReport kept = keep_input(run_r.status, run_r.message);
       kept.chi_before = run_r.chi_before;
       kept.chi_after = run_r.chi_after;
       return kept;
     }
     if (run_r.n_vertices > vcap || run_r.n_faces > fcap) {
-      RemeshReport kept = keep_input(RemeshStatus::capacity_exceeded, "result exceeds the capacity");
+      RemeshReport kept = keep_input(Status::kCapacityExceeded, "result exceeds the capacity");
       kept.faces_estimated = run_r.faces_estimated;
       return kept;
     }
@@ -143,9 +157,9 @@ RemeshReport remesh_buffers(const float* V, int64_t vcap, const int32_t* F, int6
     for (int64_t i = 0; i < 3 * fcap; ++i) F_out[i] = i < 3 * nfo ? result.origin[i] : 0;
     return run_r;
   } catch (const std::exception& e) {
-    return keep_input(RemeshStatus::invalid_input, std::string("internal error: ") + e.what());
+    return keep_input(Status::kInvalidInput, std::string("internal error: ") + e.what());
   } catch (...) {
-    return keep_input(RemeshStatus::invalid_input, "internal error");
+    return keep_input(Status::kInvalidInput, "internal error");
   }
 }
 
@@ -169,16 +183,16 @@ RemeshReport remesh_arrays(const double* V, int64_t nv, const int32_t* F, int64_
     }
     he::Mesh result;
     r = run(input, params, face_budget, &result);
-    if (r.status != RemeshStatus::ok && r.status != RemeshStatus::capacity_exceeded) return r;
+    if (r.status != Status::kOk && r.status != Status::kCapacityExceeded) return r;
     result.write(V_out, F_out);
     attr_out->assign(result.attr.begin(), result.attr.end());
     return r;
   } catch (const std::exception& e) {
-    r.status = RemeshStatus::invalid_input;
+    r.status = Status::kInvalidInput;
     r.message = std::string("internal error: ") + e.what();
     return r;
   } catch (...) {
-    r.status = RemeshStatus::invalid_input;
+    r.status = Status::kInvalidInput;
     r.message = "internal error";
     return r;
   }

@@ -6,15 +6,19 @@
 #include <string>
 #include <vector>
 
+#include "kernels/status.h"
+
 namespace jaxgenus {
 
-enum class RemeshStatus : int32_t {
-  ok = 0,
-  capacity_exceeded = 1,  // the sizing was coarsened to fit the capacity (output valid) or,
-                          // if even that failed, the output is the unchanged input
-  invalid_input = 2,      // output is the unchanged input
-  topology_changed = 3,   // output is the unchanged input (never expected)
-};
+// Status (kernels/status.h) as used by the remesher:
+//   kOk
+//   kCapacityExceeded: the sizing field was coarsened to fit the face capacity
+//     (the output is a valid remesh), or, if even that result does not fit,
+//     the output is the unchanged input
+//   kInvalidInput: bad counts, indices, NaN, open/non-manifold/misoriented
+//     mesh, isolated vertices or bad options; the output is the unchanged input
+//   kTopologyChanged: the result failed validate(), chi or the component
+//     count (never expected); the output is the unchanged input
 
 // Lengths are absolute; a value <= 0 selects the documented default.
 struct RemeshParams {
@@ -31,7 +35,7 @@ struct RemeshParams {
 };
 
 struct RemeshReport {
-  RemeshStatus status = RemeshStatus::invalid_input;
+  Status status = Status::kInvalidInput;
   int32_t n_vertices = 0, n_faces = 0;
   int64_t faces_estimated = 0;   // faces the unconstrained sizing field asks for
   int64_t chi_before = 0, chi_after = 0;
@@ -42,14 +46,15 @@ struct RemeshReport {
 
 // Capacity-buffer entry (the XLA FFI path). V: (vcap, 3), F: (fcap, 3),
 // attr: (vcap, n_attr) or null; nv/nf live counts. Outputs have the same
-// shapes; rows past the new counts are zero. Outputs may alias inputs.
+// shapes; rows past the new counts are zero. Outputs may alias inputs. At
+// most min(face_budget, fcap) faces are produced.
 // Carried attributes: a vertex created by a split gets the mean of the edge's
 // two endpoints, a collapse leaves the mean of the two merged vertices, and
 // flips and smoothing leave them unchanged.
 RemeshReport remesh_buffers(const float* V, int64_t vcap, const int32_t* F, int64_t fcap,
                             int64_t nv, int64_t nf, const float* attr, int64_t n_attr,
-                            const RemeshParams& params, float* V_out, int32_t* F_out,
-                            float* attr_out);
+                            const RemeshParams& params, int64_t face_budget, float* V_out,
+                            int32_t* F_out, float* attr_out);
 
 // Growable entry (the numpy path): no capacity, at most face_budget faces.
 RemeshReport remesh_arrays(const double* V, int64_t nv, const int32_t* F, int64_t nf,
@@ -57,6 +62,12 @@ RemeshReport remesh_arrays(const double* V, int64_t nv, const int32_t* F, int64_
                            int64_t face_budget, std::vector<double>* V_out,
                            std::vector<int32_t>* F_out, std::vector<float>* attr_out);
 
-const char* remesh_status_name(RemeshStatus s);
+const char* remesh_status_name(Status s);
+
+// The int32 summary both entry points return: status, n_vertices, n_faces,
+// faces_estimated (clamped to int32), chi_before, chi_after, splits,
+// collapses, flips (the last three clamped to int32).
+constexpr int kRemeshInfoSize = 9;
+void write_remesh_info(const RemeshReport& r, int32_t* info);
 
 }  // namespace jaxgenus

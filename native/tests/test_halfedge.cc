@@ -178,20 +178,20 @@ static void test_invalid_inputs() {
   std::vector<float> V(bad.V.begin(), bad.V.end()), Vo(V.size());
   std::vector<int32_t> Fo(bad.F.size());
   RemeshReport r = remesh_buffers(V.data(), bad.nv(), bad.F.data(), bad.nf(), bad.nv(), bad.nf(),
-                                  nullptr, 0, RemeshParams{}, Vo.data(), Fo.data(), nullptr);
-  CHECK(r.status == RemeshStatus::invalid_input, "kernel status %d", int(r.status));
+                                  nullptr, 0, RemeshParams{}, INT64_MAX, Vo.data(), Fo.data(), nullptr);
+  CHECK(r.status == Status::kInvalidInput, "kernel status %d", int(r.status));
   CHECK(Fo == bad.F && Vo == V, "input not copied through");
   r = remesh_buffers(V.data(), bad.nv(), bad.F.data(), bad.nf(), bad.nv() + 1, bad.nf(), nullptr, 0,
-                     RemeshParams{}, Vo.data(), Fo.data(), nullptr);
-  CHECK(r.status == RemeshStatus::invalid_input, "count > capacity: %d", int(r.status));
+                     RemeshParams{}, INT64_MAX, Vo.data(), Fo.data(), nullptr);
+  CHECK(r.status == Status::kInvalidInput, "count > capacity: %d", int(r.status));
   RemeshParams p;
   p.iterations = -3;
   const Soup ok = icosphere(1, 1.0);
   std::vector<float> V2(ok.V.begin(), ok.V.end()), V2o(V2.size());
   std::vector<int32_t> F2o(ok.F.size());
-  r = remesh_buffers(V2.data(), ok.nv(), ok.F.data(), ok.nf(), ok.nv(), ok.nf(), nullptr, 0, p,
+  r = remesh_buffers(V2.data(), ok.nv(), ok.F.data(), ok.nf(), ok.nv(), ok.nf(), nullptr, 0, p, INT64_MAX,
                      V2o.data(), F2o.data(), nullptr);
-  CHECK(r.status == RemeshStatus::invalid_input, "bad options: %d", int(r.status));
+  CHECK(r.status == Status::kInvalidInput, "bad options: %d", int(r.status));
 }
 
 // Random legal operations on random meshes never break an invariant.
@@ -315,9 +315,9 @@ static void test_kernel_capacity_and_attributes() {
   std::vector<int32_t> Fo(F.size());
   RemeshParams p;
   p.target_edge_length = 0.1f;  // asks for ~2000 faces: coarsened to fit 400
-  RemeshReport r = remesh_buffers(V.data(), vcap, F.data(), fcap, s.nv(), s.nf(), A.data(), 2, p,
+  RemeshReport r = remesh_buffers(V.data(), vcap, F.data(), fcap, s.nv(), s.nf(), A.data(), 2, p, INT64_MAX,
                                   Vo.data(), Fo.data(), Ao.data());
-  CHECK(r.status == RemeshStatus::capacity_exceeded, "status %s %s", remesh_status_name(r.status),
+  CHECK(r.status == Status::kCapacityExceeded, "status %s %s", remesh_status_name(r.status),
         r.message.c_str());
   CHECK(r.n_faces <= fcap && r.n_vertices <= vcap && r.n_faces > 100, "counts %d %d", r.n_vertices,
         r.n_faces);
@@ -332,9 +332,9 @@ static void test_kernel_capacity_and_attributes() {
   for (int64_t i = 3 * r.n_faces; i < 3 * fcap; ++i) CHECK(Fo[i] == 0, "padding");
   // In-place (aliased) call with a target that fits.
   p.target_edge_length = 0.3f;
-  r = remesh_buffers(V.data(), vcap, F.data(), fcap, s.nv(), s.nf(), nullptr, 0, p, V.data(),
+  r = remesh_buffers(V.data(), vcap, F.data(), fcap, s.nv(), s.nf(), nullptr, 0, p, INT64_MAX, V.data(),
                      F.data(), nullptr);
-  CHECK(r.status == RemeshStatus::ok, "aliased status %s %s", remesh_status_name(r.status),
+  CHECK(r.status == Status::kOk, "aliased status %s %s", remesh_status_name(r.status),
         r.message.c_str());
   Mesh out;
   std::vector<double> vd(V.begin(), V.begin() + 3 * r.n_vertices);
