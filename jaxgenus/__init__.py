@@ -16,7 +16,6 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
-
 from jaxgenus._io import load_mesh, save_mesh
 from jaxgenus._topology import (
     MeshReport,
@@ -28,5 +27,7 @@ from jaxgenus._topology import (
     mesh_report,
 )
 from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
+from jaxgenus._primitives import genus_primitive
+from jaxgenus import metrics
 
 __version__ = "0.1.0"
