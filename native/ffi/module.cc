@@ -89,6 +89,25 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
                         r.message, r.target_edge_length);
 }
 
+// Test hook: runs kernels/remesh's apply_operations; returns (V, F, applied, status, message).
+nb::tuple ApplyOperationsNumpy(VerticesIn vertices, FacesIn faces,
+                               nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> ops) {
+  if (vertices.shape(1) != 3 || faces.shape(1) != 3 || ops.shape(1) != 3)
+    throw std::invalid_argument("vertices, faces and ops must have 3 columns");
+  std::vector<double> v_out;
+  std::vector<int32_t> f_out;
+  int64_t applied = 0;
+  jaxgenus::RemeshReport r;
+  {
+    nb::gil_scoped_release release;
+    r = jaxgenus::apply_operations(vertices.data(), int64_t(vertices.shape(0)), faces.data(),
+                                   int64_t(faces.shape(0)), ops.data(), int64_t(ops.shape(0)), &v_out,
+                                   &f_out, &applied);
+  }
+  return nb::make_tuple(ToNumpy(std::move(v_out), 3), ToNumpy(std::move(f_out), 3), applied,
+                        int(r.status), r.message);
+}
+
 }  // namespace
 
 NB_MODULE(_native, m) {
@@ -111,4 +130,8 @@ NB_MODULE(_native, m) {
         nb::arg("project"), nb::arg("face_budget"),
         "Remesh (V f64, F i32, attributes f32 (V, k)) outside jit; returns "
         "(V, F, attributes, info int32[REMESH_INFO_SIZE], message, target_edge_length).");
+  m.def("apply_halfedge_operations", &ApplyOperationsNumpy, nb::arg("vertices"), nb::arg("faces"),
+        nb::arg("ops"),
+        "Test hook: apply (kind, halfedge, param) rows of split/collapse/flip/smooth with validate() "
+        "after each; returns (V, F, applied, status, message).");
 }

@@ -198,4 +198,63 @@ RemeshReport remesh_arrays(const double* V, int64_t nv, const int32_t* F, int64_
   }
 }
 
+RemeshReport apply_operations(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                              const int32_t* ops, int64_t n_ops, std::vector<double>* V_out,
+                              std::vector<int32_t>* F_out, int64_t* applied) {
+  RemeshReport r;
+  *applied = 0;
+  if (nv < 0 || nf < 0 || n_ops < 0 || nv >= INT32_MAX / 4 || nf >= INT32_MAX / 4) {
+    r.message = "invalid arrays";
+    return r;
+  }
+  try {
+    he::Mesh m;
+    const he::BuildStatus b = he::Mesh::build(V, nv, F, nf, nullptr, 0, &m);
+    if (b != he::BuildStatus::ok) {
+      r.message = he::build_status_name(b);
+      return r;
+    }
+    r.chi_before = m.euler_characteristic();
+    const int32_t components = he::connected_components(m);
+    r.status = Status::kOk;
+    for (int64_t i = 0; i < n_ops; ++i) {
+      const int32_t kind = ops[3 * i], param = ops[3 * i + 2];
+      const int32_t slots = m.halfedge_slots();
+      const he::HalfedgeId h{int32_t((int64_t(ops[3 * i + 1]) % slots + slots) % slots)};
+      if (m.is_dead(he::Mesh::face(h))) continue;
+      if (kind == 0 && he::is_split_ok(m, h)) {
+        he::split(m, h, std::clamp(param, 1, 999) / 1000.0);
+      } else if (kind == 1) {
+        const he::Vec3 p = (m.pos[m.from(h).idx] + m.pos[m.to(h).idx]) * 0.5;
+        if (!he::is_collapse_ok(m, h, p, INFINITY)) continue;
+        he::collapse(m, h, p);
+      } else if (kind == 2 && he::is_flip_ok(m, h)) {
+        he::flip(m, h);
+      } else if (kind == 3) {
+        he::tangential_smooth(m, 0.5, nullptr);
+      } else {
+        continue;
+      }
+      ++*applied;
+      std::string err = he::validate(m, r.chi_before);
+      if (err.empty() && he::connected_components(m) != components) err = "components changed";
+      if (!err.empty()) {
+        r.status = Status::kTopologyChanged;
+        r.message = "op " + std::to_string(i) + ": " + err;
+        break;
+      }
+    }
+    m.compact();
+    r.chi_after = m.euler_characteristic();
+    r.n_vertices = m.live_vertices();
+    r.n_faces = m.live_faces();
+    m.write(V_out, F_out);
+    return r;
+  } catch (const std::exception& e) {
+    r.status = Status::kInvalidInput;
+    r.message = std::string("internal error: ") + e.what();
+    return r;
+  }
+}
+
 }  // namespace jaxgenus

@@ -62,6 +62,18 @@ RemeshReport remesh_arrays(const double* V, int64_t nv, const int32_t* F, int64_
                            int64_t face_budget, std::vector<double>* V_out,
                            std::vector<int32_t>* F_out, std::vector<float>* attr_out);
 
+// Test hook for the half-edge operations: applies ops (n_ops rows of
+// [kind, halfedge, param]) to (V, F): kind 0 = split at t = param / 1000,
+// 1 = collapse to the midpoint, 2 = flip, 3 = one tangential smoothing step
+// (no projection). The half-edge index is taken modulo the slot count; ops
+// that are illegal (per is_*_ok) or hit a deleted face are skipped. validate()
+// runs after every applied op; the first violation stops the run and is
+// returned in `message` with status kTopologyChanged. *applied counts the ops
+// that ran.
+RemeshReport apply_operations(const double* V, int64_t nv, const int32_t* F, int64_t nf,
+                              const int32_t* ops, int64_t n_ops, std::vector<double>* V_out,
+                              std::vector<int32_t>* F_out, int64_t* applied);
+
 const char* remesh_status_name(Status s);
 
 // The int32 summary both entry points return: status, n_vertices, n_faces,
