@@ -167,9 +167,9 @@ def _crop(cfg, flat):
     return img[: cfg.height, : cfg.width]
 
 
-def _uncrop(cfg, img):
+def _uncrop(cfg, img, fill=0.0):
     pad = [(0, cfg.pad), (0, cfg.pad)] + [(0, 0)] * (img.ndim - 2)
-    return jnp.pad(img, pad).reshape((_canvas_size(cfg),) + img.shape[2:])
+    return jnp.pad(img, pad, constant_values=fill).reshape((_canvas_size(cfg),) + img.shape[2:])
 
 
 def _score_bg(cfg, dtype):
@@ -221,8 +221,10 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
         cols += [res["mlw"], jnp.sum(g_blend * res["blend"], axis=-1)]
         cols += [g_blend[..., i] for i in range(cfg.n_blend)]
     # one contiguous canvas per channel: channel-minor gathers are several times slower
-    pix = [_uncrop(cfg, c) for c in cols]
+    # off-image pixels: zero upstream gradient and (for mlw) a huge normalizer, so exp() -> 0
+    pix = [_uncrop(cfg, c, -_neg(dtype) if i == 1 else 0.0) for i, c in enumerate(cols)]
     grads = []
+    gdc = jnp.zeros((2,), dtype)
     for t, b in zip(tiers, cfg.windows):
         p = _pairs(cfg, t, b)
         k = p.x.shape[0]
@@ -239,8 +241,9 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
             gx = gx + gscore * (1.0 - dval)
             gq = gscore / cfg.gamma
             if cfg.want_depth:
-                z = vals[-1]
-                gq = gq - pj * gb[-1] * z * z * dconst[0]
+                gz = -pj * gb[-1] * vals[-1] * vals[-1]  # d(out)/d(1/z) of this pair
+                gq = gq + gz * dconst[0]
+                gdc = gdc + jnp.stack([jnp.sum(jnp.where(p.live, gz * p.q, 0.0)), jnp.sum(jnp.where(p.live, gz, 0.0))])
         gx = jnp.where(p.live, gx, 0.0)
         gq = jnp.where(p.live, gq, 0.0)
         gd2 = -2.0 * jnp.where(p.inside, gx, -gx) / cfg.sigma
@@ -268,7 +271,7 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
         gplane = jnp.stack([red[:, 7], red[:, 8], red[:, 6]], -1)
         gattr = red[:, 11:] if cfg.n_attr else jnp.zeros((k, 0), dtype)
         grads.append(Tier(gv, gplane, red[:, 9:11], gattr, None, None))
-    return tuple(grads)
+    return tuple(grads), gdc
 
 
 def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
@@ -295,8 +298,8 @@ def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
             t, d, r, gl, gb = a
             return _backward_view(cfg, t, d, r, gl, gb)
 
-        grads = jax.lax.map(one, (tiers, dconst, res_b, g_logt, g_blend))
-        return grads, None
+        grads, gdc = jax.lax.map(one, (tiers, dconst, res_b, g_logt, g_blend))
+        return grads, gdc
 
     run.defvjp(fwd, bwd)
     return run(tiers, dconst)
