@@ -36,13 +36,16 @@ def _rel(a, b):
 
 
 def _value_and_grad(mesh, cams, channels=ALL, **kw):
+    """Image, loss and vertex gradient of a random linear loss, in one pass."""
     c = sum(jg.CHANNEL_SIZES[x] for x in channels)
     w = _weights((len(cams), cams.height, cams.width, c))
 
     def loss(v):
-        return jnp.sum(jg.render(_with_vertices(mesh, v), cams, channels=channels, **kw) * w)
+        img = jg.render(_with_vertices(mesh, v), cams, channels=channels, **kw)
+        return jnp.sum(img * w), img
 
-    return jax.value_and_grad(loss)(mesh.vertices)
+    (val, img), g = jax.value_and_grad(loss, has_aux=True)(mesh.vertices)
+    return img, val, g
 
 
 # ---------------------------------------------------------------- dense reference
@@ -53,8 +56,7 @@ def _value_and_grad(mesh, cams, channels=ALL, **kw):
     [
         (ALL, True, 0.5, 0.01),
         (("alpha",), True, 2.0, 0.01),
-        (("normal", "depth"), False, 0.5, 0.05),
-        (("shaded", "alpha"), True, 0.1, 1e-3),
+        (("normal", "depth", "shaded"), False, 0.1, 1e-3),
     ],
 )
 def test_matches_dense_reference(channels, cull, sigma, gamma):
@@ -83,8 +85,8 @@ def test_matches_dense_reference(channels, cull, sigma, gamma):
 def test_two_tier_plan_matches_dense_reference():
     """Faces larger than the small window go to the big tier and are rendered in full."""
     mesh = _sphere(sub=1)
-    cams = jg.sphere_cameras(2, radius=3.0, resolution=32)
-    plan = jg.RasterPlan(window=6, max_faces=80, big_window=32, max_big_faces=80)
+    cams = jg.sphere_cameras(1, radius=3.0, resolution=24)
+    plan = jg.RasterPlan(window=5, max_faces=80, big_window=24, max_big_faces=80)
     img, info = jg.render(mesh, cams, channels=ALL, plan=plan, return_info=True)
     assert int(info.n_overflow) == 0
     ref = dense_render(mesh, cams, channels=ALL, sigma=0.5, gamma=0.01)
@@ -142,8 +144,7 @@ def test_sphere_alpha_matches_disc_area():
 
 
 def _finite(mesh, cams, **kw):
-    val, g = _value_and_grad(mesh, cams, **kw)
-    img = jg.render(mesh, cams, channels=ALL, **{k: v for k, v in kw.items() if k != "channels"})
+    img, val, g = _value_and_grad(mesh, cams, **kw)
     assert bool(jnp.all(jnp.isfinite(img)))
     assert bool(jnp.isfinite(val))
     assert bool(jnp.all(jnp.isfinite(g)))
@@ -167,9 +168,7 @@ CAM = dict(eye=np.array([[0.0, 0.0, -3.0]]), resolution=16)
     ],
 )
 def test_degenerate_faces_are_finite(verts):
-    mesh = _tri_mesh(verts, [(0, 1, 2), (1, 2, 3)])
-    for sigma in (0.5, 1e-6):
-        _finite(mesh, jg.look_at(**CAM), sigma=sigma, cull_backfaces=False)
+    _finite(_tri_mesh(verts, [(0, 1, 2), (1, 2, 3)]), jg.look_at(**CAM), cull_backfaces=False)
 
 
 @pytest.mark.parametrize("z", [-3.0, -2.0, -3.5])  # vertex at the camera centre, on z=1 plane, behind
@@ -186,12 +185,12 @@ def test_face_crossing_near_plane_is_skipped_and_finite():
     assert float(jnp.max(img[..., 0])) == 0.0
 
 
-@pytest.mark.parametrize("sigma", [1e-6, 1e-2, 10.0])
+@pytest.mark.parametrize("sigma", [1e-6, 10.0])
 def test_sigma_range_is_finite(sigma):
     _finite(_sphere(sub=1), jg.sphere_cameras(2, radius=3.0, resolution=16), sigma=sigma)
 
 
-@pytest.mark.parametrize("gamma", [1e-4, 1e-3, 1.0])
+@pytest.mark.parametrize("gamma", [1e-4, 1.0])
 def test_gamma_range_is_finite(gamma):
     img, g = _finite(_sphere(sub=1), jg.sphere_cameras(2, radius=3.0, resolution=16), gamma=gamma)
     assert float(jnp.max(jnp.abs(g))) > 0
@@ -211,10 +210,10 @@ def test_scaled_scene_is_scale_invariant(scale):
 
 def test_scaled_mesh_fixed_cameras_is_finite():
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
-    for scale in (1e-3, 1e3):
-        mesh = _sphere(sub=1)
-        img, info = jg.render(_with_vertices(mesh, mesh.vertices * scale), cams, channels=ALL, return_info=True)
-        _finite(_with_vertices(mesh, mesh.vertices * scale), cams)
+    mesh = _sphere(sub=1)
+    plan = jg.RasterPlan(window=16, max_faces=80)
+    for scale in (1e-3, 1e3):  # a dot, and cameras inside a huge sphere
+        _finite(_with_vertices(mesh, mesh.vertices * scale), cams, plan=plan)
 
 
 def test_mesh_outside_view_renders_background():
