@@ -41,7 +41,10 @@ void flip(Mesh& m, HalfedgeId h);
 class SurfaceProjector {
  public:
   SurfaceProjector(const Mesh& reference);
-  Vec3 project(const Vec3& p, double* value) const;
+  // Closest point to p; *value gets the interpolated per-vertex value there.
+  // *hint: a triangle to try first (speeds up the search; -1 for none); on
+  // return, the triangle of the closest point.
+  Vec3 project(const Vec3& p, double* value, int32_t* hint) const;
 
  private:
   struct Node {
