@@ -86,7 +86,7 @@ def test_genus_primitives_keep_topology(g):
     mesh = jg.genus_primitive(g, n_faces=max(800, 60 * g))
     h = float(np.mean(np.linalg.norm(np.diff(np.asarray(mesh.vertices)[np.asarray(mesh.faces)][:, [0, 1, 2, 0]], axis=1), axis=-1)))
     for options in (
-        jg.RemeshOptions(target_edge_length=1.3 * h, iterations=3),
+        jg.RemeshOptions(target_edge_length=1.3 * h, iterations=2, debug_validate=True),  # validate() after every op
         jg.RemeshOptions(target_edge_length=0.8 * h, iterations=2),
         jg.RemeshOptions(adaptive=True, iterations=3),
     ):
@@ -134,7 +134,8 @@ def test_shared_meshes_keep_topology(name, genus):
     root = shared_meshes_dir()
     tm = trimesh.load(root / name, process=False)
     mesh = jg.Mesh.from_numpy(np.asarray(tm.vertices, np.float32), np.asarray(tm.faces, np.int32))
-    out, info = jg.remesh(mesh, jg.RemeshOptions(iterations=2))
+    # Tiny meshes: validate() after every operation too.
+    out, info = jg.remesh(mesh, jg.RemeshOptions(iterations=2, debug_validate=len(tm.faces) < 5000))
     assert info.status == jg.RemeshStatus.OK, info.message
     assert jg.genus(out) == genus
     assert_same_topology(mesh, out)

@@ -55,7 +55,7 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
                       float target_edge_length, int32_t iterations, int32_t adaptive,
                       float approx_error, float min_edge_length, float max_edge_length,
                       float coarsen_factor, int32_t smoothing_steps, float smoothing_lambda,
-                      int32_t project, int64_t face_budget) {
+                      int32_t project, int32_t debug_validate, int64_t face_budget) {
   if (vertices.shape(1) != 3) throw std::invalid_argument("vertices must have shape (V, 3)");
   if (faces.shape(1) != 3) throw std::invalid_argument("faces must have shape (F, 3)");
   if (attributes.shape(0) != vertices.shape(0))
@@ -71,6 +71,7 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
   p.smoothing_steps = smoothing_steps;
   p.smoothing_lambda = smoothing_lambda;
   p.project = project;
+  p.debug_validate = debug_validate;
   const int64_t k = int64_t(attributes.shape(1));
   std::vector<double> v_out;
   std::vector<int32_t> f_out;
@@ -127,7 +128,7 @@ NB_MODULE(_native, m) {
         nb::arg("target_edge_length"), nb::arg("iterations"), nb::arg("adaptive"),
         nb::arg("approx_error"), nb::arg("min_edge_length"), nb::arg("max_edge_length"),
         nb::arg("coarsen_factor"), nb::arg("smoothing_steps"), nb::arg("smoothing_lambda"),
-        nb::arg("project"), nb::arg("face_budget"),
+        nb::arg("project"), nb::arg("debug_validate"), nb::arg("face_budget"),
         "Remesh (V f64, F i32, attributes f32 (V, k)) outside jit; returns "
         "(V, F, attributes, info int32[REMESH_INFO_SIZE], message, target_edge_length).");
   m.def("apply_halfedge_operations", &ApplyOperationsNumpy, nb::arg("vertices"), nb::arg("faces"),

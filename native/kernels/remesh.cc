@@ -52,6 +52,7 @@ RemeshReport run(const he::Mesh& input, const RemeshParams& p, int64_t face_budg
   s.smoothing_lambda = p.smoothing_lambda;
   s.project = p.project != 0;
   s.face_budget = face_budget;
+  s.validate_each_operation = p.debug_validate != 0;
   r.target_edge_length = h;
   r.chi_before = input.euler_characteristic();
   *result = input;
