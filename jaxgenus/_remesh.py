@@ -231,7 +231,7 @@ def remesh(mesh, options: RemeshOptions | None = None, *, attributes=None) -> tu
         face_budget=int(budget),
         **options._static_args(),
     )
-    info = [int(x) for x in np.asarray(info).reshape(-1)]
+    info = [int(x) for x in info]
     if info[0] not in (RemeshStatus.OK, RemeshStatus.CAPACITY_EXCEEDED):
         raise ValueError(f"mesh: cannot remesh ({RemeshStatus(info[0]).name}): {message}")
     out = Mesh.from_numpy(v_out, f_out, capacity=capacity_bucket(f_out.shape[0]))

@@ -41,12 +41,21 @@ nb::tuple MeshCheckNumpy(FacesIn faces, int64_t n_vertices, int64_t n_faces, int
 using VerticesIn = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using AttributesIn = nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
+// Hands a vector to numpy without copying, as a (size / cols, cols) array.
 template <typename T>
-nb::ndarray<nb::numpy, T, nb::ndim<2>> ToNumpy(std::vector<T>&& data, size_t cols) {
+nb::ndarray<nb::numpy, T> ToNumpy(std::vector<T>&& data, size_t cols) {
   auto* owned = new std::vector<T>(std::move(data));
   nb::capsule own(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
-  return nb::ndarray<nb::numpy, T, nb::ndim<2>>(owned->data(), {cols ? owned->size() / cols : 0, cols},
-                                                 own);
+  const size_t shape[2] = {cols ? owned->size() / cols : 0, cols};
+  return nb::ndarray<nb::numpy, T>(owned->data(), 2, shape, own);
+}
+
+template <typename T>
+nb::ndarray<nb::numpy, T> ToNumpy1D(std::vector<T>&& data) {
+  auto* owned = new std::vector<T>(std::move(data));
+  nb::capsule own(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+  const size_t shape[1] = {owned->size()};
+  return nb::ndarray<nb::numpy, T>(owned->data(), 1, shape, own);
 }
 
 // Remeshes (V, F) outside jit: no capacity, at most face_budget faces. Returns
@@ -86,7 +95,7 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
   std::vector<int32_t> info(jaxgenus::kRemeshInfoSize);
   jaxgenus::write_remesh_info(r, info.data());
   return nb::make_tuple(ToNumpy(std::move(v_out), 3), ToNumpy(std::move(f_out), 3),
-                        ToNumpy(std::move(a_out), size_t(k)), ToNumpy(std::move(info), info.size()),
+                        ToNumpy(std::move(a_out), size_t(k)), ToNumpy1D(std::move(info)),
                         r.message, r.target_edge_length);
 }
 
