@@ -174,6 +174,27 @@ def test_random_operation_sequences_keep_invariants(kind, seed, ops):
     assert_same_topology(m_in, m_out)
 
 
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    g=st.integers(0, 4),
+    seed=st.integers(0, 10_000),
+    noise=st.sampled_from([0.0, 0.3, 1.5]),
+    scale=st.floats(0.5, 2.5),
+    adaptive=st.booleans(),
+    iterations=st.integers(1, 5),
+    lam=st.floats(0.2, 1.0),
+)
+def test_random_remeshes_of_noisy_meshes_keep_genus(g, seed, noise, scale, adaptive, iterations, lam):
+    v, f = jg.genus_primitive(g, n_faces=500).to_numpy()
+    v = v.astype(np.float64)
+    h = float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).mean())
+    v = v + noise * h * np.random.default_rng(seed).normal(size=v.shape)  # may fold and self-intersect
+    opts = jg.RemeshOptions(target_edge_length=scale * h, adaptive=adaptive, iterations=iterations, smoothing_lambda=lam)
+    out, info = jg.remesh((v, f), opts)
+    assert info.status == jg.RemeshStatus.OK, info.message
+    assert_same_topology(jg.Mesh.from_numpy(v, f), out)
+
+
 # --------------------------------------------------------------------------- attributes
 
 

@@ -100,7 +100,8 @@ struct RemeshOutcome {
 
 // Botsch-Kobbelt loop (split > 4/3 L, collapse < 4/5 L, valence flips,
 // tangential smoothing + projection) with a curvature-adaptive sizing field L
-// and an optional coarsening phase first (V-cycle). Ends with compact().
+// and an optional coarsening phase first (V-cycle). Ends with compact(),
+// except when validate_each_operation finds a violation (out.error set).
 RemeshOutcome remesh(Mesh& m, const RemeshSettings& s);
 
 }  // namespace jaxgenus::he

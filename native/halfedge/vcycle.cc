@@ -174,9 +174,8 @@ void assign_sizing(Mesh& m, const RemeshSettings& s, RemeshOutcome* out) {
   }
 }
 
-bool smooth_and_project(Mesh& m, const RemeshSettings& s, const SurfaceProjector* ref) {
+void smooth_and_project(Mesh& m, const RemeshSettings& s, const SurfaceProjector* ref) {
   for (int i = 0; i < s.smoothing_steps; ++i) tangential_smooth(m, s.smoothing_lambda, ref);
-  return true;
 }
 
 }  // namespace
@@ -190,10 +189,7 @@ RemeshOutcome remesh(Mesh& m, const RemeshSettings& s) {
     ref = std::make_unique<SurfaceProjector>(m);  // its triangle t is face t of m (no tombstones yet)
     for (int32_t v = 0; v < m.vertex_slots(); ++v) m.hint[v] = m.v_out[v] / 3;
   }
-  auto fail = [&]() {
-    m.compact();
-    return out;
-  };
+  auto fail = [&]() { return out; };  // out.error is set; the mesh is left as it is
   if (s.coarsen_factor > 1) {  // V-cycle: coarsening phase toward a longer target
     if (!collapse_short_edges(m, s, s.coarsen_factor, chi, &out)) return fail();
     if (!equalize_valences(m, s, chi, &out)) return fail();
