@@ -234,7 +234,8 @@ def remesh(mesh, options: RemeshOptions | None = None, *, attributes=None) -> tu
     info = [int(x) for x in info]
     if info[0] not in (RemeshStatus.OK, RemeshStatus.CAPACITY_EXCEEDED):
         raise ValueError(f"mesh: cannot remesh ({RemeshStatus(info[0]).name}): {message}")
-    out = Mesh.from_numpy(v_out, f_out, capacity=capacity_bucket(f_out.shape[0]))
+    vcap, fcap = capacity_bucket(f_out.shape[0])
+    out = Mesh.from_numpy(v_out, f_out, capacity=(max(vcap, v_out.shape[0]), fcap))
     carried = np.asarray(a_out).reshape(v_out.shape[0], -1) if attributes is not None else None
     return out, RemeshInfo._from_info(info, attributes=carried, target_edge_length=float(h), message=message)
 

@@ -97,6 +97,18 @@ def test_genus_primitives_keep_topology(g):
         assert np.percentile(min_angles(*out.to_numpy()), 1) > 15.0  # coarse meshes of high genus
 
 
+def test_several_components():
+    a, fa = torus_grid(20, 8)
+    b = jg.genus_primitive(0, n_faces=300).to_numpy()
+    # One torus and three spheres: chi = 0 + 3 * 2 = 6, more vertices than F / 2 + 2.
+    v = np.concatenate([a] + [b[0] + 3.0 * k for k in range(1, 4)])
+    f = np.concatenate([fa] + [b[1] + len(a) + k * len(b[0]) for k in range(3)])
+    mesh = jg.Mesh.from_numpy(v, f)
+    out, info = jg.remesh(mesh)
+    assert info.chi_before == info.chi_after == 6
+    assert_same_topology(mesh, out)
+
+
 def test_uniform_target_is_met():
     v, f = torus_grid(60, 14)
     out, info = jg.remesh((v, f), jg.RemeshOptions(target_edge_length=0.08))
