@@ -4,8 +4,9 @@ Topology is checked with checkers independent of the remesher's own validate():
 the native mesh checker (`mesh_report`, a separate kernel) and trimesh.
 """
 
-import subprocess
+import os
 import shutil
+import subprocess
 from pathlib import Path
 
 import jax
@@ -310,7 +311,11 @@ def test_native_core_under_sanitizers(tmp_path):
     """Builds native/tests with ASan + UBSan and runs them (curvature, invalid input, random ops, kernel)."""
     if shutil.which("g++") is None:
         pytest.skip("g++ not available")
-    env = {"TMPDIR": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    probe = tmp_path / "probe.cc"
+    probe.write_text("int main() { return 0; }\n")
+    if subprocess.run(["g++", "-fsanitize=address,undefined", str(probe), "-o", str(tmp_path / "probe")], capture_output=True).returncode:
+        pytest.skip("g++ cannot link AddressSanitizer/UBSan here")
+    env = dict(os.environ, TMPDIR=str(tmp_path))
     res = subprocess.run(["bash", str(REPO / "native/tests/run_sanitizers.sh")], capture_output=True, text=True, env=env, timeout=900)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "OK (0 failures)" in res.stdout
