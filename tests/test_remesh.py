@@ -264,6 +264,17 @@ def test_ffi_and_numpy_paths_agree():
     assert jg.genus(b) == jg.genus(a) == 1
 
 
+def test_traced_target_edge_length():
+    mesh = jg.genus_primitive(0, n_faces=500).with_capacity(4000)
+    run = jax.jit(lambda m, h: jg.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=h, iterations=3)))
+    coarse, _, ic = run(mesh, jnp.float32(0.3))
+    fine, _, i_f = run(mesh, jnp.float32(0.1))
+    assert int(ic.status) == int(i_f.status) == 0
+    # Face count scales like 1 / h^2 (sphere of radius 1: about 4 pi / (sqrt(3)/4 h^2)).
+    for out, h in ((coarse, 0.3), (fine, 0.1)):
+        assert 0.6 < int(out.n_faces) / (4 * np.pi / (np.sqrt(3) / 4 * h * h)) < 1.4
+
+
 def test_capacity_exceeded_still_gives_a_valid_mesh():
     mesh = jg.genus_primitive(2, n_faces=1000).with_capacity(1200)
     out, _, info = jax.jit(lambda m: jg.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=0.01)))(mesh)
