@@ -16,6 +16,19 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
+from jaxgenus._io import load_mesh, save_mesh
+from jaxgenus._topology import (
+    MeshReport,
+    component_genera,
+    connected_components,
+    euler_characteristic,
+    genus,
+    is_closed_manifold,
+    mesh_report,
+)
+from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
+from jaxgenus._primitives import genus_primitive
+from jaxgenus import metrics
 
 __version__ = "0.1.0"
 from jaxgenus._operators import face_normals, vertex_normals
