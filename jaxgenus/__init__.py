@@ -29,7 +29,7 @@ from jaxgenus._topology import (
 from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus._primitives import genus_primitive
 from jaxgenus import metrics
-
-__version__ = "0.1.0"
 from jaxgenus._operators import face_normals, vertex_normals
 from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
+
+__version__ = "0.1.0"

@@ -56,7 +56,7 @@ def _value_and_grad(mesh, cams, channels=ALL, **kw):
     [
         (ALL, True, 0.5, 0.01),
         (("alpha",), True, 2.0, 0.01),
-        (("normal", "depth", "shaded"), False, 0.1, 1e-3),
+        (("normal", "depth", "shaded"), False, 0.1, 0.02),
     ],
 )
 def test_matches_dense_reference(channels, cull, sigma, gamma):
