@@ -76,6 +76,8 @@ class RemeshOptions:
         smoothing_steps: tangential smoothing steps per iteration (default 1).
         smoothing_lambda: step of tangential smoothing, in (0, 1] (default 1).
         project: project smoothed vertices onto the input surface (default True).
+        debug_validate: run the half-edge `validate()` after every single operation
+            and report the first violation as TOPOLOGY_CHANGED (slow; for tests).
         max_faces: face budget (`None`: the output capacity in `remesh_in_jit`,
             unlimited in `remesh`). The sizing field is scaled up to fit it and the
             status is then CAPACITY_EXCEEDED (the result is still a valid mesh).
@@ -91,6 +93,7 @@ class RemeshOptions:
     smoothing_steps: int = 1
     smoothing_lambda: float = 1.0
     project: bool = True
+    debug_validate: bool = False
     max_faces: int | None = None
 
     def __post_init__(self):
@@ -134,6 +137,7 @@ class RemeshOptions:
             smoothing_steps=np.int32(self.smoothing_steps),
             smoothing_lambda=np.float32(self.smoothing_lambda),
             project=np.int32(bool(self.project)),
+            debug_validate=np.int32(bool(self.debug_validate)),
         )
 
 
@@ -227,10 +231,11 @@ def remesh(mesh, options: RemeshOptions | None = None, *, attributes=None) -> tu
         face_budget=int(budget),
         **options._static_args(),
     )
-    info = [int(x) for x in np.asarray(info).reshape(-1)]
+    info = [int(x) for x in info]
     if info[0] not in (RemeshStatus.OK, RemeshStatus.CAPACITY_EXCEEDED):
         raise ValueError(f"mesh: cannot remesh ({RemeshStatus(info[0]).name}): {message}")
-    out = Mesh.from_numpy(v_out, f_out, capacity=capacity_bucket(f_out.shape[0]))
+    vcap, fcap = capacity_bucket(f_out.shape[0])
+    out = Mesh.from_numpy(v_out, f_out, capacity=(max(vcap, v_out.shape[0]), fcap))
     carried = np.asarray(a_out).reshape(v_out.shape[0], -1) if attributes is not None else None
     return out, RemeshInfo._from_info(info, attributes=carried, target_edge_length=float(h), message=message)
 

@@ -4,8 +4,9 @@ Topology is checked with checkers independent of the remesher's own validate():
 the native mesh checker (`mesh_report`, a separate kernel) and trimesh.
 """
 
-import subprocess
+import os
 import shutil
+import subprocess
 from pathlib import Path
 
 import jax
@@ -86,7 +87,7 @@ def test_genus_primitives_keep_topology(g):
     mesh = jg.genus_primitive(g, n_faces=max(800, 60 * g))
     h = float(np.mean(np.linalg.norm(np.diff(np.asarray(mesh.vertices)[np.asarray(mesh.faces)][:, [0, 1, 2, 0]], axis=1), axis=-1)))
     for options in (
-        jg.RemeshOptions(target_edge_length=1.3 * h, iterations=3),
+        jg.RemeshOptions(target_edge_length=1.3 * h, iterations=2, debug_validate=True),  # validate() after every op
         jg.RemeshOptions(target_edge_length=0.8 * h, iterations=2),
         jg.RemeshOptions(adaptive=True, iterations=3),
     ):
@@ -95,6 +96,18 @@ def test_genus_primitives_keep_topology(g):
         assert info.chi_before == info.chi_after == 2 - 2 * g
         assert_same_topology(mesh, out)
         assert np.percentile(min_angles(*out.to_numpy()), 1) > 15.0  # coarse meshes of high genus
+
+
+def test_several_components():
+    a, fa = torus_grid(20, 8)
+    b = jg.genus_primitive(0, n_faces=300).to_numpy()
+    # One torus and three spheres: chi = 0 + 3 * 2 = 6, more vertices than F / 2 + 2.
+    v = np.concatenate([a] + [b[0] + 3.0 * k for k in range(1, 4)])
+    f = np.concatenate([fa] + [b[1] + len(a) + k * len(b[0]) for k in range(3)])
+    mesh = jg.Mesh.from_numpy(v, f)
+    out, info = jg.remesh(mesh)
+    assert info.chi_before == info.chi_after == 6
+    assert_same_topology(mesh, out)
 
 
 def test_uniform_target_is_met():
@@ -134,7 +147,8 @@ def test_shared_meshes_keep_topology(name, genus):
     root = shared_meshes_dir()
     tm = trimesh.load(root / name, process=False)
     mesh = jg.Mesh.from_numpy(np.asarray(tm.vertices, np.float32), np.asarray(tm.faces, np.int32))
-    out, info = jg.remesh(mesh, jg.RemeshOptions(iterations=2))
+    # Tiny meshes: validate() after every operation too.
+    out, info = jg.remesh(mesh, jg.RemeshOptions(iterations=2, debug_validate=len(tm.faces) < 5000))
     assert info.status == jg.RemeshStatus.OK, info.message
     assert jg.genus(out) == genus
     assert_same_topology(mesh, out)
@@ -171,6 +185,27 @@ def test_random_operation_sequences_keep_invariants(kind, seed, ops):
     assert status == 0, message  # validate() after every applied operation
     m_in, m_out = jg.Mesh.from_numpy(v, f), jg.Mesh.from_numpy(v2, f2)
     assert_same_topology(m_in, m_out)
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    g=st.integers(0, 4),
+    seed=st.integers(0, 10_000),
+    noise=st.sampled_from([0.0, 0.3, 1.5]),
+    scale=st.floats(0.5, 2.5),
+    adaptive=st.booleans(),
+    iterations=st.integers(1, 5),
+    lam=st.floats(0.2, 1.0),
+)
+def test_random_remeshes_of_noisy_meshes_keep_genus(g, seed, noise, scale, adaptive, iterations, lam):
+    v, f = jg.genus_primitive(g, n_faces=500).to_numpy()
+    v = v.astype(np.float64)
+    h = float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).mean())
+    v = v + noise * h * np.random.default_rng(seed).normal(size=v.shape)  # may fold and self-intersect
+    opts = jg.RemeshOptions(target_edge_length=scale * h, adaptive=adaptive, iterations=iterations, smoothing_lambda=lam)
+    out, info = jg.remesh((v, f), opts)
+    assert info.status == jg.RemeshStatus.OK, info.message
+    assert_same_topology(jg.Mesh.from_numpy(v, f), out)
 
 
 # --------------------------------------------------------------------------- attributes
@@ -229,6 +264,17 @@ def test_ffi_and_numpy_paths_agree():
     assert jg.genus(b) == jg.genus(a) == 1
 
 
+def test_traced_target_edge_length():
+    mesh = jg.genus_primitive(0, n_faces=500).with_capacity(4000)
+    run = jax.jit(lambda m, h: jg.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=h, iterations=3)))
+    coarse, _, ic = run(mesh, jnp.float32(0.3))
+    fine, _, i_f = run(mesh, jnp.float32(0.1))
+    assert int(ic.status) == int(i_f.status) == 0
+    # Face count scales like 1 / h^2 (sphere of radius 1: about 4 pi / (sqrt(3)/4 h^2)).
+    for out, h in ((coarse, 0.3), (fine, 0.1)):
+        assert 0.6 < int(out.n_faces) / (4 * np.pi / (np.sqrt(3) / 4 * h * h)) < 1.4
+
+
 def test_capacity_exceeded_still_gives_a_valid_mesh():
     mesh = jg.genus_primitive(2, n_faces=1000).with_capacity(1200)
     out, _, info = jax.jit(lambda m: jg.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=0.01)))(mesh)
@@ -276,7 +322,11 @@ def test_native_core_under_sanitizers(tmp_path):
     """Builds native/tests with ASan + UBSan and runs them (curvature, invalid input, random ops, kernel)."""
     if shutil.which("g++") is None:
         pytest.skip("g++ not available")
-    env = {"TMPDIR": str(tmp_path), "PATH": "/usr/bin:/bin"}
+    probe = tmp_path / "probe.cc"
+    probe.write_text("int main() { return 0; }\n")
+    if subprocess.run(["g++", "-fsanitize=address,undefined", str(probe), "-o", str(tmp_path / "probe")], capture_output=True).returncode:
+        pytest.skip("g++ cannot link AddressSanitizer/UBSan here")
+    env = dict(os.environ, TMPDIR=str(tmp_path))
     res = subprocess.run(["bash", str(REPO / "native/tests/run_sanitizers.sh")], capture_output=True, text=True, env=env, timeout=900)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "OK (0 failures)" in res.stdout

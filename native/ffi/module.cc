@@ -41,12 +41,21 @@ nb::tuple MeshCheckNumpy(FacesIn faces, int64_t n_vertices, int64_t n_faces, int
 using VerticesIn = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using AttributesIn = nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
+// Hands a vector to numpy without copying, as a (size / cols, cols) array.
 template <typename T>
-nb::ndarray<nb::numpy, T, nb::ndim<2>> ToNumpy(std::vector<T>&& data, size_t cols) {
+nb::ndarray<nb::numpy, T> ToNumpy(std::vector<T>&& data, size_t cols) {
   auto* owned = new std::vector<T>(std::move(data));
   nb::capsule own(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
-  return nb::ndarray<nb::numpy, T, nb::ndim<2>>(owned->data(), {cols ? owned->size() / cols : 0, cols},
-                                                 own);
+  const size_t shape[2] = {cols ? owned->size() / cols : 0, cols};
+  return nb::ndarray<nb::numpy, T>(owned->data(), 2, shape, own);
+}
+
+template <typename T>
+nb::ndarray<nb::numpy, T> ToNumpy1D(std::vector<T>&& data) {
+  auto* owned = new std::vector<T>(std::move(data));
+  nb::capsule own(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+  const size_t shape[1] = {owned->size()};
+  return nb::ndarray<nb::numpy, T>(owned->data(), 1, shape, own);
 }
 
 // Remeshes (V, F) outside jit: no capacity, at most face_budget faces. Returns
@@ -55,7 +64,7 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
                       float target_edge_length, int32_t iterations, int32_t adaptive,
                       float approx_error, float min_edge_length, float max_edge_length,
                       float coarsen_factor, int32_t smoothing_steps, float smoothing_lambda,
-                      int32_t project, int64_t face_budget) {
+                      int32_t project, int32_t debug_validate, int64_t face_budget) {
   if (vertices.shape(1) != 3) throw std::invalid_argument("vertices must have shape (V, 3)");
   if (faces.shape(1) != 3) throw std::invalid_argument("faces must have shape (F, 3)");
   if (attributes.shape(0) != vertices.shape(0))
@@ -71,6 +80,7 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
   p.smoothing_steps = smoothing_steps;
   p.smoothing_lambda = smoothing_lambda;
   p.project = project;
+  p.debug_validate = debug_validate;
   const int64_t k = int64_t(attributes.shape(1));
   std::vector<double> v_out;
   std::vector<int32_t> f_out;
@@ -85,7 +95,7 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
   std::vector<int32_t> info(jaxgenus::kRemeshInfoSize);
   jaxgenus::write_remesh_info(r, info.data());
   return nb::make_tuple(ToNumpy(std::move(v_out), 3), ToNumpy(std::move(f_out), 3),
-                        ToNumpy(std::move(a_out), size_t(k)), ToNumpy(std::move(info), info.size()),
+                        ToNumpy(std::move(a_out), size_t(k)), ToNumpy1D(std::move(info)),
                         r.message, r.target_edge_length);
 }
 
@@ -127,7 +137,7 @@ NB_MODULE(_native, m) {
         nb::arg("target_edge_length"), nb::arg("iterations"), nb::arg("adaptive"),
         nb::arg("approx_error"), nb::arg("min_edge_length"), nb::arg("max_edge_length"),
         nb::arg("coarsen_factor"), nb::arg("smoothing_steps"), nb::arg("smoothing_lambda"),
-        nb::arg("project"), nb::arg("face_budget"),
+        nb::arg("project"), nb::arg("debug_validate"), nb::arg("face_budget"),
         "Remesh (V f64, F i32, attributes f32 (V, k)) outside jit; returns "
         "(V, F, attributes, info int32[REMESH_INFO_SIZE], message, target_edge_length).");
   m.def("apply_halfedge_operations", &ApplyOperationsNumpy, nb::arg("vertices"), nb::arg("faces"),

@@ -14,7 +14,7 @@ ffi::Error RemeshImpl(ffi::BufferR2<ffi::F32> vertices, ffi::BufferR2<ffi::S32> 
                       ffi::BufferR0<ffi::F32> target_edge_length, int32_t iterations,
                       int32_t adaptive, float approx_error, float min_edge_length,
                       float max_edge_length, float coarsen_factor, int32_t smoothing_steps,
-                      float smoothing_lambda, int32_t project, int64_t max_faces,
+                      float smoothing_lambda, int32_t project, int32_t debug_validate, int64_t max_faces,
                       ffi::ResultBufferR2<ffi::F32> vertices_out,
                       ffi::ResultBufferR2<ffi::S32> faces_out,
                       ffi::ResultBufferR2<ffi::F32> attributes_out,
@@ -41,6 +41,7 @@ ffi::Error RemeshImpl(ffi::BufferR2<ffi::F32> vertices, ffi::BufferR2<ffi::S32> 
   p.smoothing_steps = smoothing_steps;
   p.smoothing_lambda = smoothing_lambda;
   p.project = project;
+  p.debug_validate = debug_validate;
   const int64_t k = ad[1];
   const jaxgenus::RemeshReport r = jaxgenus::remesh_buffers(
       vertices.typed_data(), vd[0], faces.typed_data(), fd[0], counts.typed_data()[0],
@@ -69,6 +70,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(JgRemesh, RemeshImpl,
                                   .Attr<int32_t>("smoothing_steps")
                                   .Attr<float>("smoothing_lambda")
                                   .Attr<int32_t>("project")
+                                  .Attr<int32_t>("debug_validate")
                                   .Attr<int64_t>("max_faces")
                                   .Ret<ffi::BufferR2<ffi::F32>>()
                                   .Ret<ffi::BufferR2<ffi::S32>>()

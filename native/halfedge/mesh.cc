@@ -42,6 +42,7 @@ BuildStatus Mesh::build(const double* V, int64_t nv, const int32_t* F, int64_t n
   m.twin.assign(3 * nf, -1);
   m.v_out.assign(nv, -1);
   m.sizing.assign(nv, 0.0);
+  m.hint.assign(nv, -1);
   m.n_attr = n_attr;
   m.attr.assign(static_cast<size_t>(nv) * n_attr, 0.0);
   if (attr_in != nullptr)
@@ -138,6 +139,7 @@ VertexId Mesh::add_vertex(const Vec3& p) {
   pos.push_back(p);
   v_out.push_back(-1);
   sizing.push_back(0.0);
+  hint.push_back(-1);
   attr.resize(attr.size() + n_attr, 0.0);
   ++n_live_vertices_;
   return {int32_t(pos.size()) - 1};
@@ -159,6 +161,7 @@ void Mesh::set_face(FaceId f, VertexId a, VertexId b, VertexId c) {
 
 void Mesh::interpolate_vertex_data(VertexId dst, VertexId a, VertexId b, double t) {
   sizing[dst.idx] = (1 - t) * sizing[a.idx] + t * sizing[b.idx];
+  hint[dst.idx] = t < 0.5 ? hint[a.idx] : hint[b.idx];
   for (int32_t k = 0; k < n_attr; ++k) {
     attr[size_t(dst.idx) * n_attr + k] =
         (1 - t) * attr[size_t(a.idx) * n_attr + k] + t * attr[size_t(b.idx) * n_attr + k];
@@ -174,6 +177,7 @@ void Mesh::compact() {
     vmap[v] = nv;
     pos[nv] = pos[v];
     sizing[nv] = sizing[v];
+    hint[nv] = hint[v];
     for (int32_t k = 0; k < n_attr; ++k) attr[size_t(nv) * n_attr + k] = attr[size_t(v) * n_attr + k];
     ++nv;
   }
@@ -193,6 +197,7 @@ void Mesh::compact() {
     if (v_out[v] >= 0) new_out[vmap[v]] = hmap(v_out[v]);
   pos.resize(nv);
   sizing.resize(nv);
+  hint.resize(nv);
   attr.resize(size_t(nv) * n_attr);
   v_out = std::move(new_out);
   origin.resize(3 * nf);

@@ -60,6 +60,7 @@ class Mesh {
   std::vector<Vec3> pos;
   std::vector<int32_t> v_out;      // one outgoing half-edge; -1 for a deleted vertex
   std::vector<double> sizing;      // target edge length (interpolated by the operations)
+  std::vector<int32_t> hint;       // last reference triangle a vertex was projected onto (or -1)
   std::vector<double> attr;        // n_attr carried floats per vertex (interpolated)
   int32_t n_attr = 0;
   // Per half-edge (3 per face slot).

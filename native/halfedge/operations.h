@@ -41,7 +41,10 @@ void flip(Mesh& m, HalfedgeId h);
 class SurfaceProjector {
  public:
   SurfaceProjector(const Mesh& reference);
-  Vec3 project(const Vec3& p, double* value) const;
+  // Closest point to p; *value gets the interpolated per-vertex value there.
+  // *hint: a triangle to try first (speeds up the search; -1 for none); on
+  // return, the triangle of the closest point.
+  Vec3 project(const Vec3& p, double* value, int32_t* hint) const;
 
  private:
   struct Node {
@@ -97,7 +100,8 @@ struct RemeshOutcome {
 
 // Botsch-Kobbelt loop (split > 4/3 L, collapse < 4/5 L, valence flips,
 // tangential smoothing + projection) with a curvature-adaptive sizing field L
-// and an optional coarsening phase first (V-cycle). Ends with compact().
+// and an optional coarsening phase first (V-cycle). Ends with compact(),
+// except when validate_each_operation finds a violation (out.error set).
 RemeshOutcome remesh(Mesh& m, const RemeshSettings& s);
 
 }  // namespace jaxgenus::he

@@ -8,6 +8,7 @@
 // coarsening phase removed.
 #include <algorithm>
 #include <limits>
+#include <utility>
 
 #include "halfedge/operations.h"
 
@@ -52,9 +53,9 @@ Vec3 closest_on_triangle(const Vec3& p, const Vec3& a, const Vec3& b, const Vec3
 }
 
 double box_distance2(const Vec3& p, const Vec3& lo, const Vec3& hi) {
-  const double dx = std::max({lo.x - p.x, 0.0, p.x - hi.x});
-  const double dy = std::max({lo.y - p.y, 0.0, p.y - hi.y});
-  const double dz = std::max({lo.z - p.z, 0.0, p.z - hi.z});
+  const double dx = p.x < lo.x ? lo.x - p.x : (p.x > hi.x ? p.x - hi.x : 0.0);
+  const double dy = p.y < lo.y ? lo.y - p.y : (p.y > hi.y ? p.y - hi.y : 0.0);
+  const double dz = p.z < lo.z ? lo.z - p.z : (p.z > hi.z ? p.z - hi.z : 0.0);
   return dx * dx + dy * dy + dz * dz;
 }
 
@@ -117,31 +118,38 @@ void SurfaceProjector::build(int32_t node, int32_t begin, int32_t end, std::vect
   nodes_[node] = {lo, hi, right, 0};
 }
 
-Vec3 SurfaceProjector::project(const Vec3& p, double* value) const {
+Vec3 SurfaceProjector::project(const Vec3& p, double* value, int32_t* hint) const {
   if (order_.empty()) return p;
   double best = std::numeric_limits<double>::infinity();
   Vec3 best_p = p;
-  int32_t stack[128];
+  int32_t best_t = -1;
+  double best_w[3] = {1, 0, 0};
+  auto try_triangle = [&](int32_t t) {
+    double w[3];
+    const Vec3 q = closest_on_triangle(p, tri_[3 * t], tri_[3 * t + 1], tri_[3 * t + 2], w);
+    const Vec3 dq = q - p;
+    const double d2 = dot(dq, dq);
+    if (d2 < best) {
+      best = d2;
+      best_p = q;
+      best_t = t;
+      best_w[0] = w[0];
+      best_w[1] = w[1];
+      best_w[2] = w[2];
+    }
+  };
+  const int32_t n_tri = int32_t(order_.size());
+  if (*hint >= 0 && *hint < n_tri) try_triangle(*hint);
+  // Depth-first, nearer child first; entries carry their box distance.
+  std::pair<int32_t, double> stack[128];
   int top = 0;
-  stack[top++] = 0;
+  stack[top++] = {0, box_distance2(p, nodes_[0].lo, nodes_[0].hi)};
   while (top > 0) {
-    const int32_t ni = stack[--top];
+    const auto [ni, nd2] = stack[--top];
+    if (nd2 >= best) continue;
     const Node& nd = nodes_[ni];
-    if (box_distance2(p, nd.lo, nd.hi) >= best) continue;
     if (nd.count > 0) {
-      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) {
-        const int32_t t = order_[i];
-        double w[3];
-        const Vec3 q = closest_on_triangle(p, tri_[3 * t], tri_[3 * t + 1], tri_[3 * t + 2], w);
-        const Vec3 dq = q - p;
-        const double d2 = dot(dq, dq);
-        if (d2 < best) {
-          best = d2;
-          best_p = q;
-          if (value != nullptr)
-            *value = w[0] * value_[3 * t] + w[1] * value_[3 * t + 1] + w[2] * value_[3 * t + 2];
-        }
-      }
+      for (int32_t i = nd.first; i < nd.first + nd.count; ++i) try_triangle(order_[i]);
       continue;
     }
     const int32_t l = ni + 1, r = nd.first;
@@ -149,13 +157,17 @@ Vec3 SurfaceProjector::project(const Vec3& p, double* value) const {
     const double dr = box_distance2(p, nodes_[r].lo, nodes_[r].hi);
     if (top + 2 > 128) continue;  // depth is ~log2(F), far below this
     if (dl < dr) {
-      stack[top++] = r;
-      stack[top++] = l;
+      stack[top++] = {r, dr};
+      stack[top++] = {l, dl};
     } else {
-      stack[top++] = l;
-      stack[top++] = r;
+      stack[top++] = {l, dl};
+      stack[top++] = {r, dr};
     }
   }
+  *hint = best_t;
+  if (value != nullptr && best_t >= 0)
+    *value = best_w[0] * value_[3 * best_t] + best_w[1] * value_[3 * best_t + 1] +
+             best_w[2] * value_[3 * best_t + 2];
   return best_p;
 }
 
@@ -192,7 +204,7 @@ void tangential_smooth(Mesh& m, double lambda, const SurfaceProjector* reference
   }
   for (int32_t v = 0; v < nvs; ++v) {
     if (m.is_dead(VertexId{v})) continue;
-    m.pos[v] = reference != nullptr ? reference->project(moved[v], &m.sizing[v]) : moved[v];
+    m.pos[v] = reference != nullptr ? reference->project(moved[v], &m.sizing[v], &m.hint[v]) : moved[v];
   }
 }
 

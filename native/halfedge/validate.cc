@@ -12,7 +12,7 @@ std::string validate(const Mesh& m, int64_t expected_chi) {
   const int32_t nvs = m.vertex_slots(), nfs = m.face_slots(), nhs = m.halfedge_slots();
   if (int32_t(m.origin.size()) != nhs || int32_t(m.twin.size()) != nhs)
     return "half-edge arrays do not match the face count";
-  if (int32_t(m.v_out.size()) != nvs || int32_t(m.sizing.size()) != nvs ||
+  if (int32_t(m.v_out.size()) != nvs || int32_t(m.sizing.size()) != nvs || int32_t(m.hint.size()) != nvs ||
       m.attr.size() != size_t(nvs) * m.n_attr)
     return "vertex arrays do not match the vertex count";
   int32_t live_f = 0, live_v = 0;

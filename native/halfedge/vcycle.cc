@@ -11,6 +11,9 @@
 namespace jaxgenus::he {
 namespace {
 
+constexpr int kKappaSmoothing = 3;   // one-ring averaging rounds of the curvature
+constexpr double kGradation = 0.5;   // max growth of the sizing field per unit length
+
 double edge_target(const Mesh& m, HalfedgeId h) {
   return 0.5 * (m.sizing[m.from(h).idx] + m.sizing[m.to(h).idx]);
 }
@@ -120,24 +123,41 @@ void assign_sizing(Mesh& m, const RemeshSettings& s, RemeshOutcome* out) {
     std::fill(m.sizing.begin(), m.sizing.end(), s.target_edge_length);
   } else {
     const Curvature curv = vertex_curvature(m);
-    // One round of one-ring averaging of kappa makes the field robust to noise.
-    std::vector<double> kappa(nvs), smooth(nvs);
+    // A few rounds of one-ring averaging make kappa robust to noise and slivers.
+    std::vector<double> kappa(nvs), next(nvs);
     for (int32_t v = 0; v < nvs; ++v) kappa[v] = max_abs_principal(curv.mean[v], curv.gaussian[v]);
-    for (int32_t v = 0; v < nvs; ++v) {
-      double sum = kappa[v];
-      int n = 1;
-      const HalfedgeId start = m.out(VertexId{v});
-      HalfedgeId g = start;
-      do {
-        sum += kappa[m.to(g).idx];
-        ++n;
-        g = m.rotate(g);
-      } while (g != start);
-      smooth[v] = sum / n;
+    for (int round = 0; round < kKappaSmoothing; ++round) {
+      for (int32_t v = 0; v < nvs; ++v) {
+        double sum = kappa[v];
+        int n = 1;
+        const HalfedgeId start = m.out(VertexId{v});
+        HalfedgeId g = start;
+        do {
+          sum += kappa[m.to(g).idx];
+          ++n;
+          g = m.rotate(g);
+        } while (g != start);
+        next[v] = sum / n;
+      }
+      kappa.swap(next);
     }
     for (int32_t v = 0; v < nvs; ++v)
-      m.sizing[v] = target_length_from_curvature(smooth[v], s.approx_error, s.min_edge_length,
+      m.sizing[v] = target_length_from_curvature(kappa[v], s.approx_error, s.min_edge_length,
                                                  s.max_edge_length);
+    // Gradation: L may grow by at most kGradation per unit of distance, so
+    // triangles between fine and coarse regions stay well shaped.
+    for (int sweep = 0; sweep < 16; ++sweep) {
+      bool changed = false;
+      for (int32_t h = 0; h < m.halfedge_slots(); ++h) {
+        const int32_t a = m.origin[h], b = m.to(HalfedgeId{h}).idx;
+        const double limit = m.sizing[b] + kGradation * m.length(HalfedgeId{h});
+        if (m.sizing[a] > limit) {
+          m.sizing[a] = limit;
+          changed = true;
+        }
+      }
+      if (!changed) break;
+    }
   }
   double faces = 0;  // equilateral triangles of side L cover sqrt(3)/4 L^2 each
   for (int32_t f = 0; f < m.face_slots(); ++f) {
@@ -154,9 +174,8 @@ void assign_sizing(Mesh& m, const RemeshSettings& s, RemeshOutcome* out) {
   }
 }
 
-bool smooth_and_project(Mesh& m, const RemeshSettings& s, const SurfaceProjector* ref) {
+void smooth_and_project(Mesh& m, const RemeshSettings& s, const SurfaceProjector* ref) {
   for (int i = 0; i < s.smoothing_steps; ++i) tangential_smooth(m, s.smoothing_lambda, ref);
-  return true;
 }
 
 }  // namespace
@@ -166,11 +185,11 @@ RemeshOutcome remesh(Mesh& m, const RemeshSettings& s) {
   const int64_t chi = m.euler_characteristic();
   assign_sizing(m, s, &out);
   std::unique_ptr<SurfaceProjector> ref;
-  if (s.project) ref = std::make_unique<SurfaceProjector>(m);
-  auto fail = [&]() {
-    m.compact();
-    return out;
-  };
+  if (s.project) {
+    ref = std::make_unique<SurfaceProjector>(m);  // its triangle t is face t of m (no tombstones yet)
+    for (int32_t v = 0; v < m.vertex_slots(); ++v) m.hint[v] = m.v_out[v] / 3;
+  }
+  auto fail = [&]() { return out; };  // out.error is set; the mesh is left as it is
   if (s.coarsen_factor > 1) {  // V-cycle: coarsening phase toward a longer target
     if (!collapse_short_edges(m, s, s.coarsen_factor, chi, &out)) return fail();
     if (!equalize_valences(m, s, chi, &out)) return fail();

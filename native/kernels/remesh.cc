@@ -52,6 +52,7 @@ RemeshReport run(const he::Mesh& input, const RemeshParams& p, int64_t face_budg
   s.smoothing_lambda = p.smoothing_lambda;
   s.project = p.project != 0;
   s.face_budget = face_budget;
+  s.validate_each_operation = p.debug_validate != 0;
   r.target_edge_length = h;
   r.chi_before = input.euler_characteristic();
   *result = input;
@@ -220,6 +221,7 @@ RemeshReport apply_operations(const double* V, int64_t nv, const int32_t* F, int
     for (int64_t i = 0; i < n_ops; ++i) {
       const int32_t kind = ops[3 * i], param = ops[3 * i + 2];
       const int32_t slots = m.halfedge_slots();
+      if (slots == 0) break;
       const he::HalfedgeId h{int32_t((int64_t(ops[3 * i + 1]) % slots + slots) % slots)};
       if (m.is_dead(he::Mesh::face(h))) continue;
       if (kind == 0 && he::is_split_ok(m, h)) {

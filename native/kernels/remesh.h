@@ -32,6 +32,7 @@ struct RemeshParams {
   int32_t smoothing_steps = 1;   // tangential smoothing steps per iteration
   float smoothing_lambda = 1;    // step size of tangential smoothing, in (0, 1]
   int32_t project = 1;           // project onto the input surface after smoothing
+  int32_t debug_validate = 0;    // 1: validate() after every operation (slow; tests/debugging)
 };
 
 struct RemeshReport {
