@@ -9,7 +9,8 @@ finiteness, final loss, inverted faces and the step status flags, over
   learning rate 0.03) and the inversion weight w2 over six orders of magnitude
   plus 0 (lambda = 1 with learning rate 0.5, where faces fold, and lambda = 1e4).
 
-Writes a markdown table (default docs/stability.md) and prints it.
+Prints a markdown table and writes it between the table markers of `--out`
+(default docs/stability.md; the whole file if it has no markers).
 
     python benchmarks/stiffness.py --subdivisions 3 --resolution 32 --views 6 --steps 100
 """
@@ -132,8 +133,25 @@ def main():
     text = header + "\n" + table(rows) + "\n"
     print(text)
     if args.out:
-        with open(args.out, "w") as fh:
-            fh.write(text)
+        write_between_markers(args.out, text)
+
+
+BEGIN, END = "<!-- stiffness-table:begin -->", "<!-- stiffness-table:end -->"
+
+
+def write_between_markers(path, text):
+    """Replace the text between the table markers of `path` (or write the whole file if it has none)."""
+    try:
+        with open(path) as fh:
+            doc = fh.read()
+    except FileNotFoundError:
+        doc = ""
+    if BEGIN in doc and END in doc:
+        doc = doc[: doc.index(BEGIN) + len(BEGIN)] + "\n" + text + doc[doc.index(END) :]
+    else:
+        doc = BEGIN + "\n" + text + END + "\n"
+    with open(path, "w") as fh:
+        fh.write(doc)
 
 
 if __name__ == "__main__":

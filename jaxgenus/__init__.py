@@ -16,6 +16,18 @@ from jaxgenus._cameras import (
     project,
     sphere_cameras,
 )
+from jaxgenus._io import load_mesh, save_mesh
+from jaxgenus._topology import (
+    MeshReport,
+    component_genera,
+    connected_components,
+    euler_characteristic,
+    genus,
+    is_closed_manifold,
+    mesh_report,
+)
+from jaxgenus._primitives import genus_primitive
+from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus._energies import (
     LossWeights,

@@ -146,7 +146,7 @@ def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), *, fov_deg=40.0, re
     z = fwd / fnorm
     # image +y is down, so the camera's y axis is -up projected off z
     def _right(u):
-        x = jnp.cross(z, -u)
+        x = jnp.cross(z, u)
         return x, jnp.linalg.norm(x, axis=-1, keepdims=True)
 
     x, xn = _right(up)

@@ -1,0 +1,26 @@
+"""Evaluation metrics for reconstructions: `jaxgenus.metrics`.
+
+The evaluation protocol that combines them is described in docs/metrics.md.
+"""
+
+from jaxgenus._metrics import (
+    ChamferResult,
+    ICPResult,
+    Normalization,
+    chamfer_distance,
+    hausdorff_distance,
+    icp_align,
+    normalize_to_unit_sphere,
+    volume_iou,
+)
+
+__all__ = [
+    "ChamferResult",
+    "ICPResult",
+    "Normalization",
+    "chamfer_distance",
+    "hausdorff_distance",
+    "icp_align",
+    "normalize_to_unit_sphere",
+    "volume_iou",
+]

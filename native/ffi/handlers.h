@@ -1,0 +1,5 @@
+// Every XLA FFI handler the extension exports; module.cc lists them in one table.
+#pragma once
+#include "xla/ffi/api/ffi.h"
+
+XLA_FFI_DECLARE_HANDLER_SYMBOL(JgMeshCheck);

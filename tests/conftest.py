@@ -1,0 +1,32 @@
+import os
+from pathlib import Path
+
+import pytest
+
+
+def shared_meshes_dir() -> Path | None:
+    """`../shared/meshes` beside the repo (or $JAXGENUS_SHARED_MESHES); None when absent."""
+    env = os.environ.get("JAXGENUS_SHARED_MESHES")
+    path = Path(env) if env else Path(__file__).resolve().parents[1].parent / "shared" / "meshes"
+    return path if (path / "MANIFEST.md").is_file() else None
+
+
+def shared_mesh_table() -> list[tuple[str, int]]:
+    """(file name, genus) rows of MANIFEST.md; empty when the folder is absent."""
+    root = shared_meshes_dir()
+    if root is None:
+        return []
+    rows = []
+    for line in (root / "MANIFEST.md").read_text().splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) > 3 and cells[1].endswith(".obj") and cells[2].isdigit():
+            rows.append((cells[1], int(cells[2])))
+    return rows
+
+
+@pytest.fixture
+def shared_meshes():
+    root = shared_meshes_dir()
+    if root is None:
+        pytest.skip("../shared/meshes is absent")
+    return root
