@@ -7,6 +7,7 @@ and is differentiated by autodiff; the per-pixel work is the face-major splat of
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import NamedTuple
 
@@ -137,9 +138,8 @@ def _face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> 
     extent = jnp.max(jax.lax.stop_gradient(span), axis=-1).astype(jnp.int32)
 
     # normalized inverse depth q in [0, 1] over this view's visible vertices
-    zv = jax.lax.stop_gradient(z)
-    zmin = jnp.min(jnp.where(valid[..., None], zv, jnp.inf), axis=(1, 2))
-    zmax = jnp.max(jnp.where(valid[..., None], zv, -jnp.inf), axis=(1, 2))
+    zmin = jnp.min(jnp.where(valid[..., None], z, jnp.inf), axis=(1, 2))
+    zmax = jnp.max(jnp.where(valid[..., None], z, -jnp.inf), axis=(1, 2))
     anyv = jnp.any(valid, axis=1)
     zmin = jnp.where(anyv, zmin, 1.0)
     zmax = jnp.where(anyv, zmax, 1.0)
@@ -179,6 +179,12 @@ def _face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> 
     attr = jnp.concatenate(parts, axis=-1) if parts else jnp.zeros((n_views, n_faces, 0), dtype)
     dconst = jnp.stack([scale, offset], axis=-1)
     return _Faces(uv, plane, qrange, attr, valid, origin, extent, dconst)
+
+
+@functools.partial(jax.jit, static_argnames=("sigma", "znear", "cull"))
+def _visible_extents(mesh, cameras, *, sigma, znear, cull):
+    fs = _face_setup(mesh, cameras, sigma=sigma, znear=znear, cull=cull, attrs=(), light=None, ambient=0.0)
+    return fs.valid, fs.extent
 
 
 def _compact(mask: Array, k: int):
@@ -228,9 +234,7 @@ def plan_render(
         raise ValueError(f"quantile must be in (0, 1], got {quantile}")
     if face_margin < 1.0:
         raise ValueError(f"face_margin must be >= 1, got {face_margin}")
-    fs = _face_setup(mesh, cameras, sigma=sigma, znear=znear, cull=cull_backfaces, attrs=(), light=None, ambient=0.0)
-    valid = np.asarray(fs.valid)
-    ext = np.asarray(fs.extent)
+    valid, ext = (np.asarray(a) for a in _visible_extents(mesh, cameras, sigma=sigma, znear=znear, cull=cull_backfaces))
     n_faces = mesh.face_capacity
     vis = ext[valid]
     if vis.size == 0:
@@ -335,11 +339,23 @@ def render(
     elif not isinstance(plan, RasterPlan):
         raise ValueError(f"plan must be a RasterPlan, got {type(plan).__name__}")
 
+    light = None if light_direction is None else tuple(float(x) for x in np.asarray(light_direction).ravel())
+    return _render_jit(
+        mesh, cameras, plan, channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces),
+        light=light, ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info),
+    )
+
+
+@functools.partial(
+    jax.jit, static_argnames=("channels", "sigma", "gamma", "znear", "cull", "light", "ambient", "bg", "return_info")
+)
+def _render_jit(mesh, cameras, plan, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info):
+    bg = dict(bg)
     attrs = tuple(c for c in ("normal", "shaded") if c in channels)
     want_depth = "depth" in channels
     fs = _face_setup(
-        mesh, cameras, sigma=sigma, znear=znear, cull=cull_backfaces, attrs=attrs,
-        light=light_direction, ambient=ambient,
+        mesh, cameras, sigma=sigma, znear=znear, cull=cull, attrs=attrs,
+        light=light, ambient=ambient,
     )
 
     n_faces = mesh.face_capacity
@@ -368,7 +384,7 @@ def render(
         want_logt="alpha" in channels, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
         background=background_blend,
     )
-    logt, blend = splat(cfg, tuple(tiers), jax.lax.stop_gradient(fs.dconst))
+    logt, blend = splat(cfg, tuple(tiers), fs.dconst)
 
     offsets, o = {}, 0
     for c in attrs + (("depth",) if want_depth else ()):

@@ -68,12 +68,19 @@ class Tier(NamedTuple):
     origin: jax.Array
 
 
+def _materialize(x, token):
+    """Force `x` into a buffer: XLA CPU otherwise fuses the whole producer into the
+    (serial) scatter loop. `optimization_barrier` is stripped on CPU, a `cond` on a
+    runtime predicate (always true, `token >= 0`) is not."""
+    return jax.lax.cond(token >= 0, lambda a: a, lambda a: jax.tree.map(jnp.zeros_like, a), x)
+
+
 def _neg(dtype):
     return jnp.asarray(-0.25 * jnp.finfo(dtype).max, dtype)
 
 
 class _Pairs(NamedTuple):
-    idx: jax.Array  # (K*B*B,) flat canvas index
+    idx: jax.Array  # (K, P) flat canvas index (kept 2-D: a reshape here defeats XLA CPU vectorization)
     px: jax.Array  # (K, P) pixel centre
     py: jax.Array
     live: jax.Array  # (K, P) valid face and inside the blur radius
@@ -94,7 +101,7 @@ def _pairs(cfg: SplatConfig, tier: Tier, b: int) -> _Pairs:
     oy, ox = oy.reshape(-1), ox.reshape(-1)
     col = tier.origin[:, 0:1] + ox[None, :]
     row = tier.origin[:, 1:2] + oy[None, :]
-    idx = (row * (cfg.width + cfg.pad) + col).reshape(-1)
+    idx = row * (cfg.width + cfg.pad) + col
     px = col.astype(dtype) + 0.5
     py = row.astype(dtype) + 0.5
 
@@ -144,14 +151,11 @@ def _depth(q, dconst):
 
 
 def _blend_values(cfg, tier, p, dconst):
-    """`(K, P, n_blend)` blend attributes of every pair."""
-    k, npix = p.q.shape
-    parts = []
-    if cfg.n_attr:
-        parts.append(jnp.broadcast_to(tier.attr[:, None, :], (k, npix, cfg.n_attr)))
+    """Per blend channel, the value of every pair: `(K, 1)` (face constant) or `(K, P)`."""
+    vals = [tier.attr[:, i : i + 1] for i in range(cfg.n_attr)]
     if cfg.want_depth:
-        parts.append(_depth(p.q, dconst)[..., None])
-    return jnp.concatenate(parts, axis=-1)
+        vals.append(_depth(p.q, dconst))
+    return vals
 
 
 def _canvas_size(cfg):
@@ -163,9 +167,9 @@ def _crop(cfg, flat):
     return img[: cfg.height, : cfg.width]
 
 
-def _uncrop(cfg, img):
+def _uncrop(cfg, img, fill=0.0):
     pad = [(0, cfg.pad), (0, cfg.pad)] + [(0, 0)] * (img.ndim - 2)
-    return jnp.pad(img, pad).reshape((_canvas_size(cfg),) + img.shape[2:])
+    return jnp.pad(img, pad, constant_values=fill).reshape((_canvas_size(cfg),) + img.shape[2:])
 
 
 def _score_bg(cfg, dtype):
@@ -183,20 +187,23 @@ def _forward_view(cfg: SplatConfig, tiers, dconst):
     for t, p in zip(tiers, pairs):
         log1m, logd, _ = _log_terms(p)
         if cfg.want_logt:
-            logt = logt.at[p.idx].add(jnp.where(p.live, log1m, 0.0).reshape(-1))
+            upd = _materialize(jnp.where(p.live, log1m, 0.0), t.origin[0, 0])
+            logt = logt.at[p.idx].add(upd, mode="promise_in_bounds")
         if cfg.n_blend:
             s = jnp.where(p.live, logd + p.q / cfg.gamma, _neg(dtype))
+            s = _materialize(s, t.origin[0, 0])
             scores.append(s)
-            mcanvas = mcanvas.at[p.idx].max(s.reshape(-1))
+            mcanvas = mcanvas.at[p.idx].max(s, mode="promise_in_bounds")
     out = {"logt": _crop(cfg, logt)}
     if cfg.n_blend:
         m = jnp.maximum(mcanvas, _score_bg(cfg, dtype))
         acc = jnp.zeros((size, 1 + cfg.n_blend), dtype)
         for t, p, s in zip(tiers, pairs, scores):
-            w = jnp.exp(s - m[p.idx].reshape(s.shape))
+            w = jnp.exp(s - m.at[p.idx].get(mode="promise_in_bounds"))
             vals = _blend_values(cfg, t, p, dconst)
-            stack = jnp.concatenate([w[..., None], w[..., None] * vals], axis=-1)
-            acc = acc.at[p.idx].add(stack.reshape(-1, 1 + cfg.n_blend))
+            stack = jnp.stack([w] + [w * v for v in vals], axis=-1)
+            stack = _materialize(stack, t.origin[0, 0])
+            acc = acc.at[p.idx].add(stack, mode="promise_in_bounds")
         wb = jnp.exp(_score_bg(cfg, dtype) - m)
         bg = jnp.asarray(cfg.background, dtype)
         wsum = acc[:, 0] + wb
@@ -209,53 +216,62 @@ def _forward_view(cfg: SplatConfig, tiers, dconst):
 def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
     """Per-face gradients of one view (envelope theorem for the distance)."""
     dtype = tiers[0].v.dtype
-    cols = [g_logt[..., None]]
+    cols = [g_logt]
     if cfg.n_blend:
-        gbo = jnp.sum(g_blend * res["blend"], axis=-1)
-        cols += [res["mlw"][..., None], gbo[..., None], g_blend]
-    pix = _uncrop(cfg, jnp.concatenate(cols, axis=-1))
+        cols += [res["mlw"], jnp.sum(g_blend * res["blend"], axis=-1)]
+        cols += [g_blend[..., i] for i in range(cfg.n_blend)]
+    # one contiguous canvas per channel: channel-minor gathers are several times slower
+    # off-image pixels: zero upstream gradient and (for mlw) a huge normalizer, so exp() -> 0
+    pix = [_uncrop(cfg, c, -_neg(dtype) if i == 1 else 0.0) for i, c in enumerate(cols)]
     grads = []
+    gdc = jnp.zeros((2,), dtype)
     for t, b in zip(tiers, cfg.windows):
         p = _pairs(cfg, t, b)
-        k, npix = p.x.shape
-        gp = pix[p.idx].reshape(k, npix, -1)
+        k = p.x.shape[0]
+        gp = [c.at[p.idx].get(mode="promise_in_bounds") for c in pix]
         _, logd, dval = _log_terms(p)
-        gx = -gp[..., 0] * dval if cfg.want_logt else jnp.zeros_like(p.x)
+        gx = -gp[0] * dval if cfg.want_logt else jnp.zeros_like(p.x)
         gq = jnp.zeros_like(p.x)
-        gattr = jnp.zeros((k, cfg.n_attr), dtype)
         if cfg.n_blend:
             s = logd + p.q / cfg.gamma
-            pj = jnp.where(p.live, jnp.exp(s - gp[..., 1]), 0.0)
-            gb = gp[..., 3:]
+            pj = jnp.where(p.live, jnp.exp(s - gp[1]), 0.0)
+            gb = gp[3:]
             vals = _blend_values(cfg, t, p, dconst)
-            gscore = pj * (jnp.sum(gb * vals, axis=-1) - gp[..., 2])
+            gscore = pj * (sum(g * v for g, v in zip(gb, vals)) - gp[2])
             gx = gx + gscore * (1.0 - dval)
             gq = gscore / cfg.gamma
-            if cfg.n_attr:
-                gattr = jnp.einsum("kp,kpc->kc", pj, gb[..., : cfg.n_attr])
             if cfg.want_depth:
-                z = vals[..., -1]
-                gq = gq - pj * gb[..., -1] * z * z * dconst[0]
+                gz = -pj * gb[-1] * vals[-1] * vals[-1]  # d(out)/d(1/z) of this pair
+                gq = gq + gz * dconst[0]
+                gdc = gdc + jnp.stack([jnp.sum(jnp.where(p.live, gz * p.q, 0.0)), jnp.sum(jnp.where(p.live, gz, 0.0))])
         gx = jnp.where(p.live, gx, 0.0)
         gq = jnp.where(p.live, gq, 0.0)
-        gd2 = jnp.where(p.inside, gx, -gx) / cfg.sigma
-        gv = []
-        for i in range(3):
-            # vertex i is the start of edge i and the end of edge i-1
-            ta, dxa, dya, _ = p.edges[i]
-            tb, dxb, dyb, _ = p.edges[(i - 1) % 3]
-            ca = jnp.where(p.sel[i], -2.0 * (1.0 - ta) * gd2, 0.0)
-            cb = jnp.where(p.sel[(i - 1) % 3], -2.0 * tb * gd2, 0.0)
-            gv.append(jnp.stack([jnp.sum(ca * dxa + cb * dxb, axis=1), jnp.sum(ca * dya + cb * dyb, axis=1)], -1))
-        free = (p.qraw > t.qrange[:, 0:1]) & (p.qraw < t.qrange[:, 1:2])
+        gd2 = -2.0 * jnp.where(p.inside, gx, -gx) / cfg.sigma
+        # envelope theorem: only the nearest edge moves d^2; with t its (clamped)
+        # parameter, d(d^2)/d(start) = -2 (1 - t) dvec and d(d^2)/d(end) = -2 t dvec
+        sel0, sel1 = p.sel[:2]
+        pick = lambda i: jnp.where(sel0, p.edges[0][i], jnp.where(sel1, p.edges[1][i], p.edges[2][i]))
+        tn, dxn, dyn = pick(0), pick(1), pick(2)
+        c = [
+            gd2 * (jnp.where(p.sel[i], 1.0 - tn, 0.0) + jnp.where(p.sel[(i - 1) % 3], tn, 0.0))
+            for i in range(3)
+        ]
+        lo, hi = t.qrange[:, 0:1], t.qrange[:, 1:2]
+        free = (p.qraw > lo) & (p.qraw < hi)
         gqf = jnp.where(free, gq, 0.0)
-        gplane = jnp.stack([jnp.sum(gqf * p.px, 1), jnp.sum(gqf * p.py, 1), jnp.sum(gqf, 1)], -1)
-        glo = jnp.sum(jnp.where(p.qraw <= t.qrange[:, 0:1], gq, 0.0), 1)
-        ghi = jnp.sum(jnp.where(~free & (p.qraw > t.qrange[:, 0:1]), gq, 0.0), 1)
-        grads.append(
-            Tier(jnp.stack(gv, 1), gplane, jnp.stack([glo, ghi], -1), gattr, None, None)
-        )
-    return tuple(grads)
+        glo = jnp.where(p.qraw <= lo, gq, 0.0)
+        ghi = jnp.where(~free & (p.qraw > lo), gq, 0.0)
+        c0, c1, c2 = c
+        # one reduction per field (XLA CPU turns a stacked reduction into a slow concatenate)
+        fields = [c0 * dxn, c0 * dyn, c1 * dxn, c1 * dyn, c2 * dxn, c2 * dyn, gqf, gqf * p.px, gqf * p.py, glo, ghi]
+        if cfg.n_attr:
+            fields += [pj * gp[3 + i] for i in range(cfg.n_attr)]
+        red = jnp.stack([jnp.sum(f, axis=1) for f in fields], -1)
+        gv = red[:, :6].reshape(k, 3, 2)
+        gplane = jnp.stack([red[:, 7], red[:, 8], red[:, 6]], -1)
+        gattr = red[:, 11:] if cfg.n_attr else jnp.zeros((k, 0), dtype)
+        grads.append(Tier(gv, gplane, red[:, 9:11], gattr, None, None))
+    return tuple(grads), gdc
 
 
 def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
@@ -282,8 +298,8 @@ def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
             t, d, r, gl, gb = a
             return _backward_view(cfg, t, d, r, gl, gb)
 
-        grads = jax.lax.map(one, (tiers, dconst, res_b, g_logt, g_blend))
-        return grads, None
+        grads, gdc = jax.lax.map(one, (tiers, dconst, res_b, g_logt, g_blend))
+        return grads, gdc
 
     run.defvjp(fwd, bwd)
     return run(tiers, dconst)

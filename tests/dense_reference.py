@@ -61,7 +61,7 @@ def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True
         if cull:
             nc = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             valid = valid & (jnp.sum(nc * tri[:, 0], -1) < 0)
-        zv = jax.lax.stop_gradient(z)
+        zv = z
         zmin = jnp.min(jnp.where(valid[:, None], zv, jnp.inf))
         zmax = jnp.max(jnp.where(valid[:, None], zv, -jnp.inf))
         anyv = jnp.any(valid)
