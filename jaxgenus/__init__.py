@@ -26,6 +26,7 @@ from jaxgenus._topology import (
     is_closed_manifold,
     mesh_report,
 )
+from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus._primitives import genus_primitive
 from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals

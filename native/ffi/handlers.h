@@ -3,3 +3,4 @@
 #include "xla/ffi/api/ffi.h"
 
 XLA_FFI_DECLARE_HANDLER_SYMBOL(JgMeshCheck);
+XLA_FFI_DECLARE_HANDLER_SYMBOL(JgRemesh);

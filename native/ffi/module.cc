@@ -2,11 +2,14 @@
 // numpy entry points of the same kernels (for use outside jit and in tests).
 #include <nanobind/nanobind.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
 
 #include <stdexcept>
+#include <vector>
 
 #include "ffi/handlers.h"
 #include "kernels/mesh_check.h"
+#include "kernels/remesh.h"
 
 namespace nb = nanobind;
 
@@ -35,6 +38,86 @@ nb::tuple MeshCheckNumpy(FacesIn faces, int64_t n_vertices, int64_t n_faces, int
       nb::ndarray<nb::numpy, int32_t, nb::ndim<1>>(comp, {size_t(fcap)}, own_c));
 }
 
+using VerticesIn = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using AttributesIn = nb::ndarray<const float, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+
+// Hands a vector to numpy without copying, as a (size / cols, cols) array.
+template <typename T>
+nb::ndarray<nb::numpy, T> ToNumpy(std::vector<T>&& data, size_t cols) {
+  auto* owned = new std::vector<T>(std::move(data));
+  nb::capsule own(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+  const size_t shape[2] = {cols ? owned->size() / cols : 0, cols};
+  return nb::ndarray<nb::numpy, T>(owned->data(), 2, shape, own);
+}
+
+template <typename T>
+nb::ndarray<nb::numpy, T> ToNumpy1D(std::vector<T>&& data) {
+  auto* owned = new std::vector<T>(std::move(data));
+  nb::capsule own(owned, [](void* p) noexcept { delete static_cast<std::vector<T>*>(p); });
+  const size_t shape[1] = {owned->size()};
+  return nb::ndarray<nb::numpy, T>(owned->data(), 1, shape, own);
+}
+
+// Remeshes (V, F) outside jit: no capacity, at most face_budget faces. Returns
+// (vertices f64 (V', 3), faces i32 (F', 3), attributes f32 (V', k), info i32[9]).
+nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attributes,
+                      float target_edge_length, int32_t iterations, int32_t adaptive,
+                      float approx_error, float min_edge_length, float max_edge_length,
+                      float coarsen_factor, int32_t smoothing_steps, float smoothing_lambda,
+                      int32_t project, int32_t debug_validate, int64_t face_budget) {
+  if (vertices.shape(1) != 3) throw std::invalid_argument("vertices must have shape (V, 3)");
+  if (faces.shape(1) != 3) throw std::invalid_argument("faces must have shape (F, 3)");
+  if (attributes.shape(0) != vertices.shape(0))
+    throw std::invalid_argument("attributes must have shape (V, k)");
+  jaxgenus::RemeshParams p;
+  p.target_edge_length = target_edge_length;
+  p.iterations = iterations;
+  p.adaptive = adaptive;
+  p.approx_error = approx_error;
+  p.min_edge_length = min_edge_length;
+  p.max_edge_length = max_edge_length;
+  p.coarsen_factor = coarsen_factor;
+  p.smoothing_steps = smoothing_steps;
+  p.smoothing_lambda = smoothing_lambda;
+  p.project = project;
+  p.debug_validate = debug_validate;
+  const int64_t k = int64_t(attributes.shape(1));
+  std::vector<double> v_out;
+  std::vector<int32_t> f_out;
+  std::vector<float> a_out;
+  jaxgenus::RemeshReport r;
+  {
+    nb::gil_scoped_release release;
+    r = jaxgenus::remesh_arrays(vertices.data(), int64_t(vertices.shape(0)), faces.data(),
+                                int64_t(faces.shape(0)), k > 0 ? attributes.data() : nullptr, k, p,
+                                face_budget, &v_out, &f_out, &a_out);
+  }
+  std::vector<int32_t> info(jaxgenus::kRemeshInfoSize);
+  jaxgenus::write_remesh_info(r, info.data());
+  return nb::make_tuple(ToNumpy(std::move(v_out), 3), ToNumpy(std::move(f_out), 3),
+                        ToNumpy(std::move(a_out), size_t(k)), ToNumpy1D(std::move(info)),
+                        r.message, r.target_edge_length);
+}
+
+// Test hook: runs kernels/remesh's apply_operations; returns (V, F, applied, status, message).
+nb::tuple ApplyOperationsNumpy(VerticesIn vertices, FacesIn faces,
+                               nb::ndarray<const int32_t, nb::ndim<2>, nb::c_contig, nb::device::cpu> ops) {
+  if (vertices.shape(1) != 3 || faces.shape(1) != 3 || ops.shape(1) != 3)
+    throw std::invalid_argument("vertices, faces and ops must have 3 columns");
+  std::vector<double> v_out;
+  std::vector<int32_t> f_out;
+  int64_t applied = 0;
+  jaxgenus::RemeshReport r;
+  {
+    nb::gil_scoped_release release;
+    r = jaxgenus::apply_operations(vertices.data(), int64_t(vertices.shape(0)), faces.data(),
+                                   int64_t(faces.shape(0)), ops.data(), int64_t(ops.shape(0)), &v_out,
+                                   &f_out, &applied);
+  }
+  return nb::make_tuple(ToNumpy(std::move(v_out), 3), ToNumpy(std::move(f_out), 3), applied,
+                        int(r.status), r.message);
+}
+
 }  // namespace
 
 NB_MODULE(_native, m) {
@@ -42,10 +125,23 @@ NB_MODULE(_native, m) {
   m.def("registrations", []() {
     nb::dict table;
     table["jaxgenus_mesh_check"] = Capsule(JgMeshCheck);
+    table["jaxgenus_remesh"] = Capsule(JgRemesh);
     return table;
   });
   m.attr("REPORT_SIZE") = int(jaxgenus::kReportSize);
   m.def("mesh_check", &MeshCheckNumpy, nb::arg("faces"), nb::arg("n_vertices"), nb::arg("n_faces"),
         nb::arg("vertex_capacity"),
         "Topology report (int32[REPORT_SIZE]) and per-face component labels of a capacity mesh.");
+  m.attr("REMESH_INFO_SIZE") = int(jaxgenus::kRemeshInfoSize);
+  m.def("remesh", &RemeshNumpy, nb::arg("vertices"), nb::arg("faces"), nb::arg("attributes"),
+        nb::arg("target_edge_length"), nb::arg("iterations"), nb::arg("adaptive"),
+        nb::arg("approx_error"), nb::arg("min_edge_length"), nb::arg("max_edge_length"),
+        nb::arg("coarsen_factor"), nb::arg("smoothing_steps"), nb::arg("smoothing_lambda"),
+        nb::arg("project"), nb::arg("debug_validate"), nb::arg("face_budget"),
+        "Remesh (V f64, F i32, attributes f32 (V, k)) outside jit; returns "
+        "(V, F, attributes, info int32[REMESH_INFO_SIZE], message, target_edge_length).");
+  m.def("apply_halfedge_operations", &ApplyOperationsNumpy, nb::arg("vertices"), nb::arg("faces"),
+        nb::arg("ops"),
+        "Test hook: apply (kind, halfedge, param) rows of split/collapse/flip/smooth with validate() "
+        "after each; returns (V, F, applied, status, message).");
 }
