@@ -34,7 +34,7 @@ def _primitives(args) -> int:
 
 
 def _progress(total_cycles):
-    def show(row):
+    def show(row, mesh):
         done = row["cycle"] + 1
         eta = row["elapsed"] / done * (total_cycles - done)
         bar = "#" * done + "." * (total_cycles - done)

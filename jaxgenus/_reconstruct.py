@@ -201,8 +201,9 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
         options: `ReconstructOptions` (`ReconstructOptions.nicolet()` for the baseline).
         key: PRNG key for view sampling (default `jax.random.key(0)`); the result is
             deterministic for a given key.
-        callback: optional `callback(row)` called after every cycle with that cycle's
-            history row (a dict: cycle, loss, faces, chi, seconds, elapsed, ...).
+        callback: optional `callback(row, mesh)` called after every cycle with that
+            cycle's history row (a dict: cycle, loss, faces, chi, seconds, elapsed,
+            ...) and the current mesh (time spent in the callback is not counted).
 
     Returns:
         A `Reconstruction`. Inputs are not modified.
@@ -262,7 +263,9 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
         )
         cycles.append(row)
         if callback is not None:
-            callback(row)
+            tb = time.perf_counter()
+            callback(row, jax.tree.map(jnp.array, state.mesh))  # a copy: the state is donated next
+            t0 += time.perf_counter() - tb
 
     history = {k: np.concatenate([s[k] for s in steps]) for k in steps[0]}
     history["cycles"] = cycles

@@ -1,0 +1,25 @@
+"""Execute the notebooks' code cells at small settings (JAXGENUS_NOTEBOOK_QUICK=1)."""
+
+import json
+import os
+from pathlib import Path
+
+import pytest
+
+NOTEBOOKS = sorted((Path(__file__).resolve().parents[1] / "notebooks").glob("*.ipynb"))
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_runs(path, tmp_path, monkeypatch):
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    monkeypatch.setenv("JAXGENUS_NOTEBOOK_QUICK", "1")
+    monkeypatch.chdir(tmp_path)
+    cells = json.loads(path.read_text())["cells"]
+    namespace = {"__name__": "__main__"}
+    for cell in cells:
+        if cell["cell_type"] == "code":
+            exec(compile("".join(cell["source"]), f"{path.name}", "exec"), namespace)
+    assert (tmp_path / "quickstart_result.obj").is_file()
+    assert namespace["ours"].genus == namespace["genus"]
+    assert namespace["base"].genus == 0
