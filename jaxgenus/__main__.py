@@ -82,8 +82,8 @@ def _load_images(path):
 def _report(rec, gt=None):
     import jaxgenus as jg
 
-    print(f"genus {rec.genus} (requested {rec.options.start == 'sphere' and 0 or rec.history['requested_genus']})"
-          f"  faces {int(rec.mesh.n_faces)}  time {rec.history['seconds']:.1f}s")
+    print(f"genus {rec.genus} (requested {rec.history['requested_genus']})  faces {int(rec.mesh.n_faces)}"
+          f"  time {rec.history['seconds']:.1f}s")
     if gt is not None:
         cd = jg.metrics.chamfer_distance(rec.mesh, gt, n_samples=30_000)
         iou = jg.metrics.volume_iou(rec.mesh, gt, n_samples=100_000)
