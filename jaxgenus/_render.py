@@ -223,10 +223,11 @@ def plan_render(
 ) -> RasterPlan:
     """Choose a `RasterPlan` from the geometry (call outside `jit`, on concrete arrays).
 
-    The small window covers the `quantile` of the visible faces' clipped blurred
-    bounding boxes (rounded up to a bucket); the rest go to a big tier sized for
-    the largest face, so the plan truncates nothing for this geometry. Face
-    budgets get a `face_margin` headroom so nearby shapes reuse the plan.
+    The small window is the bucket, at most the `quantile` of the visible faces'
+    clipped blurred bounding boxes (rounded up to a bucket), that minimizes the
+    evaluated pairs; the rest go to a big tier sized for the largest face, so the
+    plan truncates nothing for this geometry. Face budgets get a `face_margin`
+    headroom so nearby shapes reuse the plan.
     """
     _check_inputs(mesh, cameras)
     sigma = _check_scalar("sigma", sigma)
@@ -239,15 +240,18 @@ def plan_render(
     vis = ext[valid]
     if vis.size == 0:
         return RasterPlan(window=_bucket(int(math.ceil(2 * blur_radius(sigma))) + 2), max_faces=min(8, max(n_faces, 1)))
-    window = _bucket(int(np.ceil(np.quantile(vis, quantile, method="higher"))))
-    small = np.sum(valid & (ext <= window), axis=1).max()
-    nbig = np.sum(valid & (ext > window), axis=1).max()
-    max_faces = int(min(n_faces, math.ceil(small * face_margin / 8 + 1) * 8))
-    if nbig == 0:
-        return RasterPlan(window=window, max_faces=max_faces)
     big_window = _bucket(int(vis.max()))
-    max_big = int(min(n_faces, math.ceil(nbig * face_margin / 4 + 1) * 4))
-    return RasterPlan(window=window, max_faces=max_faces, big_window=big_window, max_big_faces=max_big)
+    top = _bucket(int(np.ceil(np.quantile(vis, quantile, method="higher"))))
+    best = None
+    for window in [b for b in _WINDOW_BUCKETS if _bucket(int(vis.min())) <= b < top] + [top]:
+        small = np.sum(valid & (ext <= window), axis=1).max()
+        nbig = np.sum(valid & (ext > window), axis=1).max()
+        max_faces = int(min(n_faces, math.ceil(small * face_margin / 8 + 1) * 8))
+        max_big = int(min(n_faces, math.ceil(nbig * face_margin / 4 + 1) * 4)) if nbig else 0
+        plan = RasterPlan(window=window, max_faces=max_faces, big_window=big_window if nbig else 0, max_big_faces=max_big)
+        if best is None or plan.pairs_per_view() < best.pairs_per_view():
+            best = plan
+    return best
 
 
 def _is_traced(x) -> bool:
