@@ -186,10 +186,16 @@ def _score_bg(cfg, dtype):
     return jnp.asarray(-1.0 / cfg.gamma, dtype)
 
 
+def _buffer_x(p: _Pairs, token) -> _Pairs:
+    """Buffer `x` and `live`: each consumer would otherwise recompute the three edges."""
+    x, live = _materialize((p.x, p.live), token)
+    return p._replace(x=x, live=live, ea=jnp.exp(-jnp.abs(x)))
+
+
 def _forward_view(cfg: SplatConfig, tiers, dconst):
     dtype = tiers[0].v.dtype
     size = _canvas_size(cfg)
-    pairs = [_pairs(cfg, t, b) for t, b in zip(tiers, cfg.windows)]
+    pairs = [_buffer_x(_pairs(cfg, t, b), t.origin[0, 0]) for t, b in zip(tiers, cfg.windows)]
     logt = jnp.zeros((size,), dtype)
     mcanvas = jnp.full((size,), _neg(dtype), dtype)
     scores = []
