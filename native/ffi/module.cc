@@ -69,18 +69,9 @@ nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attribute
   if (faces.shape(1) != 3) throw std::invalid_argument("faces must have shape (F, 3)");
   if (attributes.shape(0) != vertices.shape(0))
     throw std::invalid_argument("attributes must have shape (V, k)");
-  jaxgenus::RemeshParams p;
-  p.target_edge_length = target_edge_length;
-  p.iterations = iterations;
-  p.adaptive = adaptive;
-  p.approx_error = approx_error;
-  p.min_edge_length = min_edge_length;
-  p.max_edge_length = max_edge_length;
-  p.coarsen_factor = coarsen_factor;
-  p.smoothing_steps = smoothing_steps;
-  p.smoothing_lambda = smoothing_lambda;
-  p.project = project;
-  p.debug_validate = debug_validate;
+  const jaxgenus::RemeshParams p{target_edge_length, iterations, adaptive, approx_error,
+                                  min_edge_length, max_edge_length, coarsen_factor,
+                                  smoothing_steps, smoothing_lambda, project, debug_validate};
   const int64_t k = int64_t(attributes.shape(1));
   std::vector<double> v_out;
   std::vector<int32_t> f_out;

@@ -30,18 +30,9 @@ ffi::Error RemeshImpl(ffi::BufferR2<ffi::F32> vertices, ffi::BufferR2<ffi::S32> 
   if (info->element_count() != jaxgenus::kRemeshInfoSize)
     return ffi::Error::InvalidArgument("remesh: info must have " +
                                        std::to_string(jaxgenus::kRemeshInfoSize) + " entries");
-  jaxgenus::RemeshParams p;
-  p.target_edge_length = *target_edge_length.typed_data();
-  p.iterations = iterations;
-  p.adaptive = adaptive;
-  p.approx_error = approx_error;
-  p.min_edge_length = min_edge_length;
-  p.max_edge_length = max_edge_length;
-  p.coarsen_factor = coarsen_factor;
-  p.smoothing_steps = smoothing_steps;
-  p.smoothing_lambda = smoothing_lambda;
-  p.project = project;
-  p.debug_validate = debug_validate;
+  const jaxgenus::RemeshParams p{*target_edge_length.typed_data(), iterations, adaptive, approx_error,
+                                  min_edge_length, max_edge_length, coarsen_factor,
+                                  smoothing_steps, smoothing_lambda, project, debug_validate};
   const int64_t k = ad[1];
   const jaxgenus::RemeshReport r = jaxgenus::remesh_buffers(
       vertices.typed_data(), vd[0], faces.typed_data(), fd[0], counts.typed_data()[0],
