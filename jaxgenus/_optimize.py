@@ -148,7 +148,7 @@ def _inverted_count(x, rest, faces, face_mask):
     return jnp.sum(face_mask & nondegenerate & (jnp.sum(n * n0, axis=-1) <= 0)).astype(jnp.int32)
 
 
-def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions):
+def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale):
     mesh = state.mesh
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
@@ -184,6 +184,7 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
         gx = jnp.where(vmask, gx, 0.0)
         gu, info_b = solve(gx, gu_prev)
         updates, new_adam = adam.update(gu, adam_state)
+        updates = jax.tree.map(lambda t: t * lr_scale, updates)
         new_u = jnp.where(vmask, u + updates, 0.0)
         new_x, info_f = solve(new_u, x)
         ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
@@ -224,6 +225,7 @@ def optimize_block(
     *,
     n_steps: int,
     options: OptimizeOptions = OptimizeOptions(),
+    lr_scale=1.0,
 ) -> tuple[OptimizerState, dict[str, Array]]:
     """Run `n_steps` large-steps uniform-Adam steps in one jit-compiled `lax.scan`.
 
@@ -235,6 +237,8 @@ def optimize_block(
             (see `jaxgenus._energies`), one per camera.
         n_steps: number of steps (static).
         options: `OptimizeOptions` (static).
+        lr_scale: factor on `options.learning_rate` for this block; a runtime value,
+            so a learning-rate schedule over blocks does not recompile.
 
     Returns:
         `(new_state, record)` with `record[name]` an `(n_steps,)` array for every
@@ -253,4 +257,4 @@ def optimize_block(
         )
     if options.views_per_step is not None and options.views_per_step > len(cameras):
         raise ValueError(f"options.views_per_step ({options.views_per_step}) exceeds the {len(cameras)} cameras")
-    return _optimize_block_jit(state, cameras, targets, n_steps, options)
+    return _optimize_block_jit(state, cameras, targets, n_steps, options, jnp.asarray(lr_scale, state.mesh.vertices.dtype))

@@ -44,19 +44,22 @@ __all__ = ["ReconstructOptions", "Reconstruction", "reconstruct", "render_target
 
 @dataclasses.dataclass(frozen=True)
 class ReconstructOptions:
-    """Settings of `reconstruct` (immutable). Lengths are relative to the visual hull's diagonal.
+    """Settings of `reconstruct` (immutable). Edge lengths are in pixels (see below).
 
     Attributes:
         n_cycles: optimize/remesh cycles; the last one is not followed by a remesh.
         steps_per_cycle: optimizer steps per cycle (the paper remeshes every 130-200).
         views_per_step: cameras sampled per step (`None`: all of them).
         learning_rate, lambda_: large-steps uniform Adam step and smoothing.
+        lr_decay: the step is `learning_rate * lr_decay ** cycle` (coarse to fine; no recompile).
         weights: `LossWeights` of the objective.
         sigma, gamma: soft rasterizer blur (px^2) and depth temperature.
         initial_faces: face count of the starting primitive.
         max_faces: face budget (sets the capacity bucket; the remesher coarsens to fit).
         initial_edge_length, final_edge_length: remesh targets of the first and the last
-            remesh (geometric in between: coarse to fine).
+            remesh (geometric in between: coarse to fine), in pixels: one pixel is the
+            median over the cameras of the world-space footprint of a pixel at the
+            visual hull's centre, so the mesh is as fine as the images resolve.
         adaptive: curvature-adaptive remeshing (`False`: uniform).
         remesh: remesh between cycles (`False` keeps the connectivity: Nicolet's baseline).
         start: `"primitive"` (genus-g start) or `"sphere"`.
@@ -66,14 +69,15 @@ class ReconstructOptions:
     steps_per_cycle: int = 150
     views_per_step: int | None = 4
     learning_rate: float = 8e-2
+    lr_decay: float = 0.5
     lambda_: float = 19.0
     weights: LossWeights = LossWeights()
     sigma: float = 0.5
     gamma: float = 0.01
     initial_faces: int = 2000
     max_faces: int = 12000
-    initial_edge_length: float = 0.04
-    final_edge_length: float = 0.02
+    initial_edge_length: float = 3.4
+    final_edge_length: float = 2.7
     adaptive: bool = False
     remesh: bool = True
     start: str = "primitive"
@@ -83,6 +87,8 @@ class ReconstructOptions:
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:
                 raise ValueError(f"options.{name} must be a positive int, got {v!r}")
+        if not 0.0 < self.lr_decay <= 1.0:
+            raise ValueError(f"options.lr_decay must be in (0, 1], got {self.lr_decay!r}")
         for name in ("learning_rate", "sigma", "gamma", "initial_edge_length", "final_edge_length"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
@@ -100,7 +106,7 @@ class ReconstructOptions:
         return cls(**base)
 
     def edge_lengths(self) -> list[float]:
-        """Relative target edge length of each remesh (coarse to fine)."""
+        """Target edge length of each remesh in pixels (coarse to fine)."""
         n = self.n_cycles - 1
         if n <= 0:
             return []
@@ -164,6 +170,12 @@ def _initial_mesh(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:
     return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces))
 
 
+def _pixel_footprint(cams: Cameras, point: np.ndarray) -> float:
+    """Median over cameras of the world size of one pixel at `point`."""
+    depth = np.linalg.norm(np.asarray(cams.centers) - point, axis=1)
+    return float(np.median(depth / np.asarray(cams.focal)[:, 0]))
+
+
 def _plan_bucket(plan: RasterPlan) -> RasterPlan:
     """Round the plan's face budgets up to powers of 1.25 so nearby meshes share one compiled plan."""
 
@@ -221,7 +233,7 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
 
     t0 = time.perf_counter()
     lo, hi = visual_hull_bounds(alpha, cams)
-    diag = float(np.linalg.norm(hi - lo))
+    pixel = _pixel_footprint(cams, 0.5 * (lo + hi))
     state = init_optimizer_state(_initial_mesh(genus, lo, hi, options), key)
     lengths = options.edge_lengths() if options.remesh else []
     remesh_options = RemeshOptions(adaptive=options.adaptive, iterations=3)
@@ -239,14 +251,15 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
             views_per_step=options.views_per_step,
             render_kwargs=(("sigma", sigma), ("gamma", options.gamma), ("plan", plan)),
         )
-        state, record = optimize_block(state, cams, targets, n_steps=options.steps_per_cycle, options=opt)
+        lr_scale = options.lr_decay**c
+        state, record = optimize_block(state, cams, targets, n_steps=options.steps_per_cycle, options=opt, lr_scale=lr_scale)
         record = jax.device_get(record)
         _, info = render(state.mesh, cams, channels=("alpha",), sigma=sigma, plan=plan, return_info=True)
         truncated = int(info.n_overflow)
         row = {"cycle": c, "optimize_seconds": time.perf_counter() - tc}
         if c < len(lengths):
             tr = time.perf_counter()
-            state, rinfo = _remesh_state(state, jnp.float32(lengths[c] * diag), remesh_options)
+            state, rinfo = _remesh_state(state, jnp.float32(lengths[c] * pixel), remesh_options)
             row["remesh_status"] = RemeshStatus(int(rinfo.status)).name
             row["remesh_seconds"] = time.perf_counter() - tr
         record["time"] = np.full(options.steps_per_cycle, np.nan)
