@@ -76,8 +76,8 @@ class ReconstructOptions:
     gamma: float = 0.01
     initial_faces: int = 2000
     max_faces: int = 12000
-    initial_edge_length: float = 3.4
-    final_edge_length: float = 2.7
+    initial_edge_length: float = 2.0
+    final_edge_length: float = 1.4
     adaptive: bool = False
     remesh: bool = True
     start: str = "primitive"
