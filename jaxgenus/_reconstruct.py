@@ -33,10 +33,10 @@ from jaxgenus._cameras import Cameras
 from jaxgenus._energies import LossWeights
 from jaxgenus._hull import split_targets, visual_hull_bounds
 from jaxgenus._mesh import Mesh, capacity_bucket
-from jaxgenus._optimize import OptimizeOptions, OptimizerState, init_optimizer_state, optimize_block
+from jaxgenus._optimize import OptimizeOptions, OptimizerState, _optimize_block_jit, init_optimizer_state, optimize_block
 from jaxgenus._primitives import genus_primitive
 from jaxgenus._remesh import RemeshOptions, RemeshStatus, remesh_in_jit
-from jaxgenus._render import RasterPlan, plan_render, render
+from jaxgenus._render import RasterPlan, _render_jit, plan_render, render
 from jaxgenus._topology import euler_characteristic, genus as mesh_genus, is_closed_manifold
 
 __all__ = ["ReconstructOptions", "Reconstruction", "reconstruct", "render_targets"]
@@ -53,7 +53,7 @@ class ReconstructOptions:
         learning_rate, lambda_: large-steps uniform Adam step and smoothing.
         lr_decay: the step is `learning_rate * lr_decay ** cycle` (coarse to fine; no recompile).
         weights: `LossWeights` of the objective.
-        sigma, gamma: soft rasterizer blur (px^2) and depth temperature.
+        sigma, gamma: soft rasterizer edge blur (px) and depth temperature.
         initial_faces: face count of the starting primitive.
         max_faces: face budget (sets the capacity bucket; the remesher coarsens to fit).
         initial_edge_length, final_edge_length: remesh targets of the first and the last
@@ -72,7 +72,7 @@ class ReconstructOptions:
     lr_decay: float = 0.5
     lambda_: float = 19.0
     weights: LossWeights = LossWeights()
-    sigma: float = 0.5
+    sigma: float = 0.1
     gamma: float = 0.01
     initial_faces: int = 2000
     max_faces: int = 12000
@@ -127,7 +127,9 @@ class Reconstruction:
         history: per-step arrays (`loss`, `alpha`, `normal`, ..., from `optimize_block`,
             concatenated over cycles, plus `time` in seconds since the start) and
             per-cycle lists under `cycles` (wall time, faces, chi, remesh status,
-            truncated faces, compilations).
+            truncated faces, new compilations), `render_plans` (distinct rasterizer
+            plans) and `compilations` (new compiled executables per jitted piece:
+            `optimize_block` once per plan bucket, `remesh` once per capacity bucket).
         options: the `ReconstructOptions` used.
     """
 
@@ -201,6 +203,12 @@ def _remesh_state(state: OptimizerState, target, options: RemeshOptions):
     return new_state, info
 
 
+def _compiled() -> dict:
+    """Compiled-executable counts of the jitted pieces of the loop (for the history)."""
+    fns = {"optimize_block": _optimize_block_jit, "remesh": _remesh_state, "render": _render_jit}
+    return {k: (f._cache_size() if hasattr(f, "_cache_size") else 0) for k, f in fns.items()}
+
+
 def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOptions = ReconstructOptions(), key=None, callback=None) -> Reconstruction:
     """Reconstruct a watertight mesh of genus `genus` from multi-view images.
 
@@ -240,6 +248,7 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
 
     steps, cycles, plans = [], [], set()
     sigma = options.sigma
+    compiled0 = compiled = _compiled()
     for c in range(options.n_cycles):
         tc = time.perf_counter()
         plan = _plan_bucket(plan_render(state.mesh, cams, sigma=sigma, face_margin=1.3))
@@ -271,9 +280,11 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
             chi=euler_characteristic(state.mesh),
             loss=float(record["loss"][-1]),
             truncated_faces=truncated,
+            compilations=sum(_compiled().values()) - sum(compiled.values()),
             seconds=time.perf_counter() - tc,
             elapsed=time.perf_counter() - t0,
         )
+        compiled = _compiled()
         cycles.append(row)
         if callback is not None:
             tb = time.perf_counter()
@@ -283,6 +294,7 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     history = {k: np.concatenate([s[k] for s in steps]) for k in steps[0]}
     history["cycles"] = cycles
     history["render_plans"] = len(plans)
+    history["compilations"] = {k: compiled[k] - compiled0[k] for k in compiled}
     history["seconds"] = time.perf_counter() - t0
     history["requested_genus"] = genus
     mesh = state.mesh
@@ -294,11 +306,11 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     return Reconstruction(mesh=mesh, genus=g, genus_ok=(g == expected), history=history, options=options)
 
 
-def render_targets(mesh: Mesh, cams: Cameras, *, supersample: int = 3, sigma: float = 0.5) -> np.ndarray:
+def render_targets(mesh: Mesh, cams: Cameras, *, supersample: int = 3, sigma: float = 0.1) -> np.ndarray:
     """Crisp synthetic RGBA targets `(N, H, W, 4)` of a ground-truth mesh.
 
     Renders alpha and world normals at `supersample` times the cameras'
-    resolution with a near-hard silhouette (`sigma` / 100 px^2 at the fine
+    resolution with a near-hard silhouette (`sigma` / 100 px at the fine
     resolution), thresholds it at 0.5 (hard coverage of each fine pixel) and
     averages blocks of pixels down. A is the covered fraction; RGB is
     `(n + 1) / 2` of the mean normal over the covered part of the pixel (0 where

@@ -83,7 +83,7 @@ class _Faces(NamedTuple):
 
 def blur_radius(sigma: float) -> float:
     """Distance in pixels beyond which a face's coverage is exactly 0 (D < 1e-4)."""
-    return math.sqrt(sigma * CUTOFF_LOG)
+    return sigma * CUTOFF_LOG
 
 
 def _check_scalar(name, value):
@@ -215,7 +215,7 @@ def plan_render(
     mesh: Mesh,
     cameras: Cameras,
     *,
-    sigma: float = 0.5,
+    sigma: float = 0.1,
     znear: float = 1e-4,
     cull_backfaces: bool = True,
     quantile: float = 0.999,
@@ -270,7 +270,7 @@ def render(
     cameras: Cameras,
     *,
     channels=("alpha", "normal"),
-    sigma: float = 0.5,
+    sigma: float = 0.1,
     gamma: float = 0.01,
     background=None,
     znear: float = 1e-4,
@@ -284,8 +284,10 @@ def render(
 
     Channels (concatenated in the requested order; `CHANNEL_SIZES` gives C):
 
-    * `"alpha"` (1): SoftRas silhouette `1 - prod_j (1 - sigmoid(-s d_j^2 / sigma))`,
-      `d_j` the pixel-centre distance to face j in pixels, `s = +1` outside, -1 inside.
+    * `"alpha"` (1): coverage `min(1, sum_j sigmoid(s_j / sigma))` over the front
+      faces, `s_j` the signed distance in pixels from the pixel centre to face j's
+      projection (> 0 inside). Neighbours sum to 1 along a shared edge, so the
+      inside of a fine mesh is opaque and silhouettes are not shifted.
     * `"normal"` (3): world-space unit face normals blended by a depth softmax
       with temperature `gamma` (on the normalized inverse depth of the view).
     * `"depth"` (1): the camera-space depth blended the same way.
@@ -294,7 +296,8 @@ def render(
       None, a headlight (towards each camera).
 
     Args:
-        sigma: blur in pixel^2 (resolution independent). gamma: softmax temperature.
+        sigma: edge blur in pixels (the sigmoid's scale; 10-90 % over 4.4 sigma).
+            gamma: depth softmax temperature.
         background: dict `{"normal": (3,), "depth": float, "shaded": float}` of
             blend background values (default 0); alpha's background is 0.
         znear: faces with a vertex at camera depth <= znear (world units) are skipped.
@@ -385,10 +388,10 @@ def _render_jit(mesh, cameras, plan, *, channels, sigma, gamma, znear, cull, lig
     background_blend = sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ())
     cfg = SplatConfig(
         height=cameras.height, width=cameras.width, windows=tuple(windows), sigma=sigma, gamma=gamma,
-        want_logt="alpha" in channels, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
+        want_cov="alpha" in channels, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
         background=background_blend,
     )
-    logt, blend = splat(cfg, tuple(tiers), fs.dconst)
+    cov, blend = splat(cfg, tuple(tiers), fs.dconst)
 
     offsets, o = {}, 0
     for c in attrs + (("depth",) if want_depth else ()):
@@ -397,7 +400,7 @@ def _render_jit(mesh, cameras, plan, *, channels, sigma, gamma, znear, cull, lig
     out = []
     for c in channels:
         if c == "alpha":
-            out.append(-jnp.expm1(logt)[..., None])
+            out.append(jnp.minimum(cov, 1.0)[..., None])
         else:
             out.append(blend[..., offsets[c] : offsets[c] + CHANNEL_SIZES[c]])
     images = jnp.concatenate(out, axis=-1)

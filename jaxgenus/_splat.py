@@ -8,6 +8,14 @@ upstream values into the windows and reduces per-face gradients over each window
 so no pixel x face temporaries exist and autodiff never sees the pair level.
 
 Inputs are "tiers": groups of faces sharing a window size (see `_render.py`).
+Coverage model: face j covers a pixel centre with `D_j = sigmoid(s_j / sigma)`,
+`s_j` the signed distance (pixels, > 0 inside) to the face's projection; the
+silhouette is the clamped sum `min(1, sum_j D_j)` over front faces. Two
+front faces sharing an edge sum to exactly 1 along it, so the interior of a
+fine mesh stays opaque (SoftRas' product `1 - prod(1 - D_j)` dips to 0.75 on
+every interior edge, which biases a fit towards overlapping layers), and the
+symmetric sigmoid of a signed distance puts a silhouette edge where it is.
+
 Per tier and view, every face slot carries
 
 * `v (K, 3, 2)`: its vertices in pixel coordinates,
@@ -20,7 +28,7 @@ Per tier and view, every face slot carries
 Per view, `dconst = (scale, offset)` turns `q` into inverse depth,
 `1/z = q * scale + offset` (only used when the depth channel is blended).
 
-Outputs per view: `logt (H, W)`, the log transmittance `sum_j log(1 - D_j)`,
+Outputs per view: `cov (H, W)`, the coverage sum `sum_j D_j`,
 and `blend (H, W, A + depth)`, the depth-softmax blend of the attributes with the
 background. See docs/rendering.md for the model and the safe formulations.
 """
@@ -33,7 +41,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-# D_j < 1e-4 is treated as exactly 0: d^2 > sigma * ln(1e4) outside the face.
+# D_j < 1e-4 is treated as exactly 0: d > sigma * ln(1e4) outside the face.
 CUTOFF_LOG = math.log(1e4)
 
 
@@ -45,7 +53,7 @@ class SplatConfig(NamedTuple):
     windows: tuple[int, ...]  # window size per tier
     sigma: float
     gamma: float
-    want_logt: bool
+    want_cov: bool
     n_attr: int  # face-constant blend channels
     want_depth: bool  # blend the per-pixel depth as one more channel
     background: tuple[float, ...]  # blend background, n_attr + want_depth values
@@ -85,7 +93,7 @@ class _Pairs(NamedTuple):
     py: jax.Array
     live: jax.Array  # (K, P) valid face and inside the blur radius
     inside: jax.Array
-    x: jax.Array  # sigmoid argument, -s d^2 / sigma
+    x: jax.Array  # sigmoid argument, signed distance / sigma (> 0 inside)
     ea: jax.Array  # exp(-|x|)
     qraw: jax.Array
     q: jax.Array
@@ -129,8 +137,9 @@ def _pairs(cfg: SplatConfig, tier: Tier, b: int) -> _Pairs:
     sel0 = d0 <= jnp.minimum(d1, d2_)
     sel1 = ~sel0 & (d1 <= d2_)
     sel2 = ~sel0 & ~sel1
-    live = tier.valid[:, None] & (inside | (d2 <= cfg.sigma * CUTOFF_LOG))
-    x = jnp.where(inside, d2, -d2) / cfg.sigma
+    live = tier.valid[:, None] & (inside | (d2 <= (cfg.sigma * CUTOFF_LOG) ** 2))
+    dist = jnp.sqrt(d2)
+    x = jnp.where(inside, dist, -dist) / cfg.sigma
     ea = jnp.exp(-jnp.abs(x))
     qraw = tier.plane[:, 0:1] * px + tier.plane[:, 1:2] * py + tier.plane[:, 2:3]
     q = jnp.clip(qraw, tier.qrange[:, 0:1], tier.qrange[:, 1:2])
@@ -147,12 +156,10 @@ def _window_get(cfg: SplatConfig, canvas, origin, b: int):
 
 
 def _log_terms(p: _Pairs):
-    """`log(1 - D)`, `log D` and `D` from one exp and one log1p (stable for any x)."""
-    l1 = jnp.log1p(p.ea)
-    log1m = -(jnp.maximum(p.x, 0.0) + l1)
-    logd = -(jnp.maximum(-p.x, 0.0) + l1)
+    """`log D` and `D = sigmoid(x)` from one exp and one log1p (stable for any x)."""
+    logd = -(jnp.maximum(-p.x, 0.0) + jnp.log1p(p.ea))
     d = jnp.where(p.x >= 0, 1.0, p.ea) / (1.0 + p.ea)
-    return log1m, logd, d
+    return logd, d
 
 
 def _depth(q, dconst):
@@ -196,20 +203,20 @@ def _forward_view(cfg: SplatConfig, tiers, dconst):
     dtype = tiers[0].v.dtype
     size = _canvas_size(cfg)
     pairs = [_buffer_x(_pairs(cfg, t, b), t.origin[0, 0]) for t, b in zip(tiers, cfg.windows)]
-    logt = jnp.zeros((size,), dtype)
+    cov = jnp.zeros((size,), dtype)
     mcanvas = jnp.full((size,), _neg(dtype), dtype)
     scores = []
     for t, p in zip(tiers, pairs):
-        log1m, logd, _ = _log_terms(p)
-        if cfg.want_logt:
-            upd = _materialize(jnp.where(p.live, log1m, 0.0), t.origin[0, 0])
-            logt = logt.at[p.idx].add(upd, mode="promise_in_bounds")
+        logd, dval = _log_terms(p)
+        if cfg.want_cov:
+            upd = _materialize(jnp.where(p.live, dval, 0.0), t.origin[0, 0])
+            cov = cov.at[p.idx].add(upd, mode="promise_in_bounds")
         if cfg.n_blend:
             s = jnp.where(p.live, logd + p.q / cfg.gamma, _neg(dtype))
             s = _materialize(s, t.origin[0, 0])
             scores.append(s)
             mcanvas = mcanvas.at[p.idx].max(s, mode="promise_in_bounds")
-    out = {"logt": _crop(cfg, logt)}
+    out = {"cov": _crop(cfg, cov)}
     if cfg.n_blend:
         m = jnp.maximum(mcanvas, _score_bg(cfg, dtype))
         acc = jnp.zeros((size, 1 + cfg.n_blend), dtype)
@@ -228,10 +235,10 @@ def _forward_view(cfg: SplatConfig, tiers, dconst):
     return out
 
 
-def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
+def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_cov, g_blend):
     """Per-face gradients of one view (envelope theorem for the distance)."""
     dtype = tiers[0].v.dtype
-    cols = [g_logt]
+    cols = [g_cov]
     if cfg.n_blend:
         cols += [res["mlw"], jnp.sum(g_blend * res["blend"], axis=-1)]
         cols += [g_blend[..., i] for i in range(cfg.n_blend)]
@@ -253,11 +260,11 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
         near = jnp.where(sel0, 0, jnp.where(sel1, 1, 2)) + jnp.where(p.inside, 3, 0)
         tn, dxn, dyn, code = _materialize((pick(0), pick(1), pick(2), jnp.where(p.live, near, -1)), tok)
         live, inside = code >= 0, code >= 3
-        d2 = dxn * dxn + dyn * dyn
-        p = p._replace(x=jnp.where(inside, d2, -d2) / cfg.sigma)
+        dist = jnp.sqrt(dxn * dxn + dyn * dyn)
+        p = p._replace(x=jnp.where(inside, dist, -dist) / cfg.sigma)
         p = p._replace(ea=jnp.exp(-jnp.abs(p.x)))
-        _, logd, dval = _log_terms(p)
-        gx = -gp[0] * dval if cfg.want_logt else jnp.zeros_like(p.x)
+        logd, dval = _log_terms(p)
+        gx = gp[0] * dval * (1.0 - dval) if cfg.want_cov else jnp.zeros_like(p.x)
         gq = jnp.zeros_like(p.x)
         pj = None
         if cfg.n_blend:
@@ -274,7 +281,8 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
                 gdc = gdc + jnp.stack([jnp.sum(jnp.where(live, gz * p.q, 0.0)), jnp.sum(jnp.where(live, gz, 0.0))])
         gx = jnp.where(live, gx, 0.0)
         gq = jnp.where(live, gq, 0.0)
-        gd2 = -2.0 * jnp.where(inside, gx, -gx) / cfg.sigma
+        # x = +-sqrt(d^2) / sigma; gd2 carries the -2 of d(d^2)/d(vertex) below
+        gd2 = jnp.where(dist > 0, -jnp.where(inside, gx, -gx) / (cfg.sigma * jnp.where(dist > 0, dist, 1.0)), 0.0)
         gd2, gq, pj = _materialize((gd2, gq, pj), tok)
         # envelope theorem: only the nearest edge moves d^2; with t its (clamped)
         # parameter, d(d^2)/d(start) = -2 (1 - t) dvec and d(d^2)/d(end) = -2 t dvec
@@ -302,7 +310,7 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_logt, g_blend):
 
 
 def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
-    """Rasterize all views: returns `(logt (N, H, W), blend (N, H, W, C) or None)`.
+    """Rasterize all views: returns `(cov (N, H, W), blend (N, H, W, C) or None)`.
 
     Every tier array has a leading view axis N; `dconst` is `(N, 2)`.
     """
@@ -310,22 +318,22 @@ def splat(cfg: SplatConfig, tiers: tuple[Tier, ...], dconst: jax.Array):
     @jax.custom_vjp
     def run(tiers, dconst):
         out = jax.lax.map(lambda a: _forward_view(cfg, *a), (tiers, dconst))
-        return out["logt"], out.get("blend")
+        return out["cov"], out.get("blend")
 
     def fwd(tiers, dconst):
         out = jax.lax.map(lambda a: _forward_view(cfg, *a), (tiers, dconst))
-        return (out["logt"], out.get("blend")), (tiers, dconst, out)
+        return (out["cov"], out.get("blend")), (tiers, dconst, out)
 
     def bwd(res, g):
         tiers, dconst, out = res
-        g_logt, g_blend = g
-        res_b = {k: v for k, v in out.items() if k != "logt"}
+        g_cov, g_blend = g
+        res_b = {k: v for k, v in out.items() if k != "cov"}
 
         def one(a):
             t, d, r, gl, gb = a
             return _backward_view(cfg, t, d, r, gl, gb)
 
-        grads, gdc = jax.lax.map(one, (tiers, dconst, res_b, g_logt, g_blend))
+        grads, gdc = jax.lax.map(one, (tiers, dconst, res_b, g_cov, g_blend))
         return grads, gdc
 
     run.defvjp(fwd, bwd)

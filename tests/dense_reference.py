@@ -87,13 +87,15 @@ def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True
         qb = jnp.where(aok, (w0 * q[:, 0] + w1 * q[:, 1] + w2 * q[:, 2]) * ia, jnp.mean(q, -1))
         qp = jnp.clip(qb, jnp.min(q, -1), jnp.max(q, -1))
 
-        x = jnp.where(inside, d2, -d2) / sigma
-        live = valid & (inside | (d2 <= sigma * CUT))
-        log1m = jnp.where(live, -jax.nn.softplus(x), 0.0)
+        pos = d2 > 0
+        dist = jnp.where(pos, jnp.sqrt(jnp.where(pos, d2, 1.0)), 0.0)
+        x = jnp.where(inside, dist, -dist) / sigma
+        live = valid & (inside | (dist <= sigma * CUT))
+        cover = jnp.where(live, jax.nn.sigmoid(x), 0.0)
         res = []
         for c in channels:
             if c == "alpha":
-                res.append((1.0 - jnp.exp(jnp.sum(log1m, -1)))[..., None])
+                res.append(jnp.minimum(jnp.sum(cover, -1), 1.0)[..., None])
                 continue
             score = jnp.where(live, -jax.nn.softplus(-x) + qp / gamma, -jnp.inf)
             sb = jnp.full((h, w, 1), -1.0 / gamma, dt)
