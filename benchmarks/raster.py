@@ -67,7 +67,7 @@ def required_pairs(mesh, cams, sigma: float) -> int:
 
     import jaxgenus as jg
 
-    r = math.sqrt(sigma * math.log(1e4))
+    r = sigma * math.log(1e4)  # blur radius in px (jaxgenus._render.blur_radius)
     v, f = mesh.to_numpy()
     uv, z = jg.project(cams, v, return_depth=True)
     uv, z = np.asarray(uv), np.asarray(z)
@@ -139,7 +139,7 @@ def main(argv=None):
     ap.add_argument("--views", nargs="*", type=int, default=[4, 12, 36])
     ap.add_argument("--res", nargs="*", type=int, default=[64, 128, 256])
     ap.add_argument("--channels", default="alpha,normal", help="comma-separated channels")
-    ap.add_argument("--sigma", type=float, default=0.5)
+    ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--iters", type=int, default=5)
     ap.add_argument("--out", help="also write the markdown table here")
     ap.add_argument("--_cell", help=argparse.SUPPRESS)

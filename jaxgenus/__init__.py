@@ -55,6 +55,7 @@ from jaxgenus._optimize import (
 )
 from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
 from jaxgenus._reconstruct import ReconstructOptions, Reconstruction, reconstruct, render_targets
+from jaxgenus._hull import visual_hull
 from jaxgenus._scenes import SCENES, builtin_scene
 
 __version__ = "0.1.0"

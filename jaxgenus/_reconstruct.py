@@ -3,8 +3,10 @@
 Pipeline (Gao et al. 2026, on this library's parts):
 
 1. Validate the targets and carve their visual hull to get the object's bounds.
-2. Start from `genus_primitive(genus)` fitted into those bounds (its longest axis
-   along the hull's longest axis, its thinnest along the thinnest).
+2. Start from the silhouettes' visual hull when its largest component has the
+   requested genus (a few grids and closings are tried), else from
+   `genus_primitive(genus)` fitted into the hull's bounds (its longest axis along
+   the hull's longest axis, its thinnest along the thinnest).
 3. Cycles of [`optimize_block` (a jit-compiled `lax.scan` of large-steps uniform
    Adam on the soft-raster l1 loss) -> the native V-cycle remesher through the
    XLA FFI], with target edge lengths going from coarse to fine. The mesh lives
@@ -31,13 +33,13 @@ import numpy as np
 
 from jaxgenus._cameras import Cameras
 from jaxgenus._energies import LossWeights
-from jaxgenus._hull import split_targets, visual_hull_bounds
+from jaxgenus._hull import split_targets, visual_hull, visual_hull_bounds
 from jaxgenus._mesh import Mesh, capacity_bucket
 from jaxgenus._optimize import OptimizeOptions, OptimizerState, _optimize_block_jit, init_optimizer_state, optimize_block
 from jaxgenus._primitives import genus_primitive
-from jaxgenus._remesh import RemeshOptions, RemeshStatus, remesh_in_jit
+from jaxgenus._remesh import RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus._render import RasterPlan, _render_jit, plan_render, render
-from jaxgenus._topology import euler_characteristic, genus as mesh_genus, is_closed_manifold
+from jaxgenus._topology import connected_components, euler_characteristic, genus as mesh_genus, is_closed_manifold
 
 __all__ = ["ReconstructOptions", "Reconstruction", "reconstruct", "render_targets"]
 
@@ -62,7 +64,11 @@ class ReconstructOptions:
             visual hull's centre, so the mesh is as fine as the images resolve.
         adaptive: curvature-adaptive remeshing (`False`: uniform).
         remesh: remesh between cycles (`False` keeps the connectivity: Nicolet's baseline).
-        start: `"primitive"` (genus-g start) or `"sphere"`.
+        start: `"auto"` (the silhouettes' visual hull when its largest component has the
+            requested genus at one of `hull_resolutions`, possibly after closing
+            thin spurious tunnels; else the genus-g primitive),
+            `"primitive"` (always the genus-g primitive) or `"sphere"` (genus 0).
+        hull_resolutions: grid sizes tried, in order, for the visual-hull start.
     """
 
     n_cycles: int = 4
@@ -80,7 +86,8 @@ class ReconstructOptions:
     final_edge_length: float = 1.4
     adaptive: bool = False
     remesh: bool = True
-    start: str = "primitive"
+    start: str = "auto"
+    hull_resolutions: tuple[int, ...] = (64, 48, 80)
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "max_faces"):
@@ -93,8 +100,10 @@ class ReconstructOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"options.{name} must be a positive number, got {v!r}")
-        if self.start not in ("primitive", "sphere"):
-            raise ValueError(f"options.start must be 'primitive' or 'sphere', got {self.start!r}")
+        if self.start not in ("auto", "primitive", "sphere"):
+            raise ValueError(f"options.start must be 'auto', 'primitive' or 'sphere', got {self.start!r}")
+        if not all(isinstance(r, int) and r >= 8 for r in self.hull_resolutions):
+            raise ValueError(f"options.hull_resolutions must be ints >= 8, got {self.hull_resolutions!r}")
         if self.max_faces < self.initial_faces:
             raise ValueError("options.max_faces must be >= options.initial_faces")
 
@@ -160,6 +169,46 @@ def _axis_fit(v: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
             t = 1.0 - t  # mirror the thinnest axis
         out[:, d] = lo[d] + t * (hi[d] - lo[d])
     return out
+
+
+def _largest_component(mesh: Mesh) -> Mesh:
+    n, labels = connected_components(mesh)
+    if n == 1:
+        return mesh
+    v, f = mesh.to_numpy()
+    f = f[labels == np.bincount(labels).argmax()]
+    used, f = np.unique(f, return_inverse=True)
+    return Mesh.from_numpy(v[used], f.reshape(-1, 3))
+
+
+def _hull_start(alpha, cams: Cameras, genus: int, target: float, options: ReconstructOptions):
+    """The visual hull as a start mesh when its largest component has genus `genus`.
+
+    Tries the grid sizes `options.hull_resolutions` with a grey-level closing of
+    0, 1, 2 cells (closing fills the spurious thin tunnels carving leaves; it stops
+    once no grid reaches the genus: closing only removes handles). Returns
+    `(mesh, (resolution, closing))` or `(None, None)`. The hull is remeshed to
+    edge length `target` (world units) within the face budget.
+    """
+    for closing in (0, 1, 2):
+        highest = -1
+        for res in options.hull_resolutions:
+            try:
+                hull = _largest_component(visual_hull(alpha, cams, resolution=res, closing=closing))
+                g = mesh_genus(hull)
+            except ValueError:
+                continue
+            highest = max(highest, g)
+            if g != genus:
+                continue
+            m, _ = remesh(hull, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.max_faces))
+            v, f = m.to_numpy()
+            if len(f) > options.max_faces or euler_characteristic(m) != 2 - 2 * genus:
+                continue
+            return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces)), (res, closing)
+        if highest < genus:
+            break
+    return None, None
 
 
 def _initial_mesh(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:
@@ -242,8 +291,15 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     t0 = time.perf_counter()
     lo, hi = visual_hull_bounds(alpha, cams)
     pixel = _pixel_footprint(cams, 0.5 * (lo + hi))
-    state = init_optimizer_state(_initial_mesh(genus, lo, hi, options), key)
     lengths = options.edge_lengths() if options.remesh else []
+    start, hull_resolution, mesh0 = options.start, None, None
+    if start == "auto":
+        first = lengths[0] if lengths else options.final_edge_length
+        mesh0, hull_resolution = _hull_start(alpha, cams, genus, first * pixel, options)
+        start = "visual_hull" if mesh0 is not None else "primitive"
+    if mesh0 is None:
+        mesh0 = _initial_mesh(genus, lo, hi, options)
+    state = init_optimizer_state(mesh0, key)
     remesh_options = RemeshOptions(adaptive=options.adaptive, iterations=3)
 
     steps, cycles, plans = [], [], set()
@@ -297,6 +353,8 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     history["compilations"] = {k: compiled[k] - compiled0[k] for k in compiled}
     history["seconds"] = time.perf_counter() - t0
     history["requested_genus"] = genus
+    history["start"] = start  # "visual_hull", "primitive" or "sphere"
+    history["hull_grid"] = hull_resolution  # (resolution, closing) of the visual-hull start
     mesh = state.mesh
     try:
         g = mesh_genus(mesh) if is_closed_manifold(mesh) else -1
@@ -327,8 +385,8 @@ def render_targets(mesh: Mesh, cams: Cameras, *, supersample: int = 3, sigma: fl
     big = Cameras(cams.rotation, cams.translation, cams.focal * s, cams.principal_point * s, h * s, w * s)
     fine_sigma = sigma * 1e-2
     plan = plan_render(mesh, big, sigma=fine_sigma)
-    draw = jax.jit(lambda m, c: render(m, c, channels=("alpha", "normal"), sigma=fine_sigma, gamma=1e-3, plan=plan))
-    img = np.asarray(draw(mesh, big)).reshape(len(cams), h, s, w, s, 4)
+    img = render(mesh, big, channels=("alpha", "normal"), sigma=fine_sigma, gamma=1e-3, plan=plan)
+    img = np.asarray(img).reshape(len(cams), h, s, w, s, 4)
     # hard coverage of each fine pixel (the soft alpha dips to 0.75 on interior edges)
     cover = (img[..., :1] >= 0.5).astype(np.float32)
     a = cover.mean(axis=(2, 4))

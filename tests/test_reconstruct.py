@@ -71,6 +71,7 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     assert 1 <= h["compilations"]["optimize_block"] <= h["render_plans"], h["compilations"]
     assert h["compilations"]["remesh"] <= 1
     assert sum(c["compilations"] for c in h["cycles"]) == sum(h["compilations"].values())
+    assert h["start"] == "visual_hull"  # the torus' hull is one genus-1 component
     assert h["loss"].shape == (300,) and np.all(np.isfinite(h["loss"]))
     assert h["loss"][-20:].mean() < 0.7 * h["loss"][:5].mean()
     # CAPACITY_EXCEEDED: the remesher coarsened to fit the face budget (still a valid mesh)
@@ -79,6 +80,31 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     # alpha-only targets fit silhouettes only
     rec_a = jg.reconstruct(img[..., 3], cams, 1, options=jg.ReconstructOptions(n_cycles=1, steps_per_cycle=5))
     assert np.all(rec_a.history["normal"] == 0.0)
+
+
+def test_visual_hull_of_torus_contains_it_and_keeps_the_hole(torus_scene):
+    gt, cams, img = torus_scene
+    hull = jg.visual_hull(img, cams, resolution=48)
+    assert jg.is_closed_manifold(hull) and jg.connected_components(hull)[0] == 1 and jg.genus(hull) == 1
+    vol_hull, vol_gt = hull.to_trimesh().volume, gt.to_trimesh().volume
+    assert vol_gt * 0.97 <= vol_hull <= vol_gt * 1.6, (vol_hull, vol_gt)  # a superset, up to the grid
+    assert jg.metrics.volume_iou(hull, gt, n_samples=50_000) >= 0.6
+    alpha_only = jg.visual_hull(img[..., 3], cams, resolution=48)
+    np.testing.assert_array_equal(alpha_only.vertices, hull.vertices)
+    with pytest.raises(ValueError, match="resolution"):
+        jg.visual_hull(img, cams, resolution=4)
+    with pytest.raises(ValueError, match="closing"):
+        jg.visual_hull(img, cams, closing=-1)
+    with pytest.raises(ValueError, match="views"):
+        jg.visual_hull(img[:3], cams)
+
+
+def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_differs(torus_scene):
+    gt, cams, img = torus_scene
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=3000)
+    rec = jg.reconstruct(img, cams, 3, options=opts)  # the hull has genus 1, not 3
+    assert rec.history["start"] == "primitive" and rec.history["hull_grid"] is None
+    assert rec.genus == 3 and rec.genus_ok
 
 
 def test_same_key_same_result(torus_scene):
