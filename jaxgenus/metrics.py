@@ -3,6 +3,7 @@
 The evaluation protocol that combines them is described in docs/metrics.md.
 """
 
+from jaxgenus import _metrics
 from jaxgenus._metrics import (
     ChamferResult,
     ICPResult,
@@ -14,13 +15,4 @@ from jaxgenus._metrics import (
     volume_iou,
 )
 
-__all__ = [
-    "ChamferResult",
-    "ICPResult",
-    "Normalization",
-    "chamfer_distance",
-    "hausdorff_distance",
-    "icp_align",
-    "normalize_to_unit_sphere",
-    "volume_iou",
-]
+__all__ = list(_metrics.__all__)
