@@ -39,16 +39,27 @@ class UniformAdamState(NamedTuple):
     nu: PyTree
 
 
-def uniform_adam(learning_rate: float, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> GradientTransformation:
+def uniform_adam(
+    learning_rate: float, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8, quantile: float = 1.0
+) -> GradientTransformation:
     """Adam whose denominator is `eps + max over all entries of sqrt(v_hat)` (per parameter array).
 
     Updates are `-learning_rate * m_hat / (eps + max(sqrt(v_hat)))` with the usual
     bias corrections; add them to the parameters (`optax.apply_updates` or `p + u`).
     `learning_rate` may be a float or a traced scalar.
+
+    `quantile < 1` makes the shared scale robust to a few outliers: it is the
+    `quantile` of `sqrt(v_hat)` over the entries with a nonzero second moment, and
+    an entry above it is divided by its own `sqrt(v_hat)` (plain Adam), so no
+    entry steps much further than `learning_rate` and a handful of vertices with
+    huge gradients (a tiny feature) cannot shrink everyone else's step.
+    `quantile=1` is exactly the max (Nicolet et al.).
     """
     for name, val, lo, hi in (("b1", b1, 0.0, 1.0), ("b2", b2, 0.0, 1.0)):
         if not lo <= float(val) < hi:
             raise ValueError(f"{name} must be in [0, 1), got {val}")
+    if not 0.0 < float(quantile) <= 1.0:
+        raise ValueError(f"quantile must be in (0, 1], got {quantile}")
     if float(eps) < 0:
         raise ValueError(f"eps must be >= 0, got {eps}")
     if isinstance(learning_rate, (int, float)) and learning_rate < 0:
@@ -72,7 +83,12 @@ def uniform_adam(learning_rate: float, b1: float = 0.9, b2: float = 0.999, eps: 
         c2 = 1.0 - b2**t
 
         def step(m, v):
-            denom = eps + jnp.sqrt(jnp.max(v) / c2.astype(v.dtype))
+            if quantile == 1.0:
+                shared = jnp.max(v)
+            else:  # entries with zero moments (padding) do not count
+                shared = jnp.nanquantile(jnp.where(v > 0, v, jnp.nan), quantile)
+                shared = jnp.maximum(jnp.where(jnp.isnan(shared), 0.0, shared), v)
+            denom = eps + jnp.sqrt(shared / c2.astype(v.dtype))
             return (-learning_rate * (m / c1.astype(m.dtype)) / denom).astype(m.dtype)
 
         updates = jax.tree.map(step, mu, nu)

@@ -70,6 +70,8 @@ class OptimizeOptions:
             vertex moves per step for smooth motions).
         lambda_: large-steps `lambda` (19, as in Nicolet et al.).
         b1, b2, eps: uniform-Adam parameters.
+        adam_quantile: quantile of the shared second moment (1: the max, Nicolet's;
+            see `uniform_adam`).
         weights: `LossWeights` of the objective.
         views_per_step: number of cameras sampled (without replacement) per step;
             `None` uses all of them every step.
@@ -85,6 +87,7 @@ class OptimizeOptions:
     b1: float = 0.9
     b2: float = 0.999
     eps: float = 1e-8
+    adam_quantile: float = 1.0
     weights: LossWeights = LossWeights()
     views_per_step: int | None = None
     cg_rtol: float = 1e-6
@@ -105,7 +108,7 @@ class OptimizeOptions:
             raise ValueError("render_kwargs must be a tuple of (name, value) pairs")
 
     def adam(self):
-        return uniform_adam(self.learning_rate, self.b1, self.b2, self.eps)
+        return uniform_adam(self.learning_rate, self.b1, self.b2, self.eps, self.adam_quantile)
 
 
 class OptimizerState(eqx.Module):

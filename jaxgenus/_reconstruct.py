@@ -4,7 +4,8 @@ Pipeline (Gao et al. 2026, on this library's parts):
 
 1. Validate the targets and carve their visual hull to get the object's bounds.
 2. Start from the silhouettes' visual hull when its largest component has the
-   requested genus (a few grids and closings are tried), else from
+   requested genus (a few grids and closings are tried) or fewer handles (the
+   missing ones are drilled as small tunnels just under its surface), else from
    `genus_primitive(genus)` fitted into the hull's bounds (its longest axis along
    the hull's longest axis, its thinnest along the thinnest).
 3. Cycles of [`optimize_block` (a jit-compiled `lax.scan` of large-steps uniform
@@ -53,6 +54,9 @@ class ReconstructOptions:
         steps_per_cycle: optimizer steps per cycle (the paper remeshes every 130-200).
         views_per_step: cameras sampled per step (`None`: all of them).
         learning_rate, lambda_: large-steps uniform Adam step and smoothing.
+        adam_quantile: quantile of uniform Adam's shared second moment (1: the max,
+            Nicolet's; the default 0.99 keeps a few vertices with outlier gradients,
+            e.g. on a tiny handle, from freezing the rest of the mesh).
         lr_decay: the step is `learning_rate * lr_decay ** cycle` (coarse to fine; no recompile).
         weights: `LossWeights` of the objective.
         sigma, gamma: soft rasterizer edge blur (px) and depth temperature.
@@ -66,7 +70,8 @@ class ReconstructOptions:
         remesh: remesh between cycles (`False` keeps the connectivity: Nicolet's baseline).
         start: `"auto"` (the silhouettes' visual hull when its largest component has the
             requested genus at one of `hull_resolutions`, possibly after closing
-            thin spurious tunnels; else the genus-g primitive),
+            thin spurious tunnels; when it has fewer handles, the missing ones are
+            added as small tunnels under its surface; else the genus-g primitive),
             `"primitive"` (always the genus-g primitive) or `"sphere"` (genus 0).
         hull_resolutions: grid sizes tried, in order, for the visual-hull start.
     """
@@ -76,6 +81,7 @@ class ReconstructOptions:
     views_per_step: int | None = 4
     learning_rate: float = 8e-2
     lr_decay: float = 0.5
+    adam_quantile: float = 0.99
     lambda_: float = 19.0
     weights: LossWeights = LossWeights()
     sigma: float = 0.1
@@ -100,6 +106,8 @@ class ReconstructOptions:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"options.{name} must be a positive number, got {v!r}")
+        if not (isinstance(self.adam_quantile, (int, float)) and 0.0 < self.adam_quantile <= 1.0):
+            raise ValueError(f"options.adam_quantile must be in (0, 1], got {self.adam_quantile!r}")
         if self.start not in ("auto", "primitive", "sphere"):
             raise ValueError(f"options.start must be 'auto', 'primitive' or 'sphere', got {self.start!r}")
         if not all(isinstance(r, int) and r >= 8 for r in self.hull_resolutions):
@@ -109,8 +117,8 @@ class ReconstructOptions:
 
     @classmethod
     def nicolet(cls, **overrides) -> "ReconstructOptions":
-        """Nicolet et al. 2021: sphere start, no remeshing, same renderer and optimizer."""
-        base = dict(start="sphere", remesh=False)
+        """Nicolet et al. 2021: sphere start, no remeshing, same renderer, their uniform Adam (the max)."""
+        base = dict(start="sphere", remesh=False, adam_quantile=1.0)
         base.update(overrides)
         return cls(**base)
 
@@ -181,15 +189,70 @@ def _largest_component(mesh: Mesh) -> Mesh:
     return Mesh.from_numpy(v[used], f.reshape(-1, 3))
 
 
+def _tunnels(hull: Mesh, count: int, size: float) -> Mesh | None:
+    """`hull` with `count` small handles: U-shaped tunnels just under its surface.
+
+    The silhouettes cannot show handles whose holes no view sees through (eyelets,
+    hooks, holes in a concave region), so the visual hull can have a lower genus
+    than the object. Each missing handle is added where it changes the shape the
+    least: a thin half-ring tunnel (ring radius `size`, tube radius `0.3 size`)
+    that dives under the surface and comes back up `2 size` further on, cut by
+    subtracting a torus centred on the surface, with manifold3d's exact booleans.
+    The sites are spread over the surface by farthest-point sampling of surface
+    samples; a cut is kept only when it raises the genus by exactly one and
+    leaves one piece. Returns
+    `None` when fewer than `count` fit. Host-side, deterministic.
+    """
+    import manifold3d
+    import trimesh
+
+    v, f = hull.to_numpy()
+    tm = trimesh.Trimesh(v.astype(np.float64), f, process=False)
+    pts, fid = trimesh.sample.sample_surface_even(tm, 2000, seed=0)
+    normals = tm.face_normals[fid]
+    solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=v.astype(np.float32), tri_verts=f.astype(np.uint32)))
+    ring = manifold3d.Manifold.revolve(manifold3d.CrossSection.circle(0.3 * size, 12).translate([size, 0.0]), 16)
+    dist = np.linalg.norm(pts - pts.mean(0), axis=1)  # farthest-point order, from the extreme sample
+    added = 0
+    for _ in range(min(len(pts), 8 * count)):
+        if added == count:
+            break
+        i = int(np.argmax(dist))
+        dist = np.minimum(dist, np.linalg.norm(pts - pts[i], axis=1))
+        n = normals[i]
+        t = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        t /= np.linalg.norm(t)
+        # ring plane spanned by the tangent t (local x) and the normal n (local y)
+        cut = solid - ring.transform(np.column_stack([t, n, np.cross(t, n), pts[i]]))
+        if cut.genus() == solid.genus() + 1 and len(cut.decompose()) == 1:
+            solid = cut
+            added += 1
+    if added < count:
+        return None
+    out = solid.to_mesh()
+    return Mesh.from_numpy(np.asarray(out.vert_properties, np.float32)[:, :3], np.asarray(out.tri_verts, np.int32))
+
+
 def _hull_start(alpha, cams: Cameras, genus: int, target: float, options: ReconstructOptions):
-    """The visual hull as a start mesh when its largest component has genus `genus`.
+    """The visual hull as a start mesh, with the requested genus.
 
     Tries the grid sizes `options.hull_resolutions` with a grey-level closing of
     0, 1, 2 cells (closing fills the spurious thin tunnels carving leaves; it stops
-    once no grid reaches the genus: closing only removes handles). Returns
-    `(mesh, (resolution, closing))` or `(None, None)`. The hull is remeshed to
-    edge length `target` (world units) within the face budget.
+    once no grid reaches the genus: closing only removes handles). When no hull
+    has the genus but one has fewer handles, the missing ones are drilled as thin
+    small tunnels (`_tunnels`, size `target`) into the one with the most.
+    Returns `(mesh, (resolution, closing), tunnels)` or `(None, None, 0)`. The
+    start is remeshed to edge length `target` (world units) within the face budget.
     """
+
+    def remeshed(hull):
+        m, _ = remesh(hull, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.max_faces))
+        v, f = m.to_numpy()
+        if len(f) > options.max_faces or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+            return None
+        return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces))
+
+    below = []  # (genus, order, hull, grid) of hulls with fewer handles than requested
     for closing in (0, 1, 2):
         highest = -1
         for res in options.hull_resolutions:
@@ -199,16 +262,21 @@ def _hull_start(alpha, cams: Cameras, genus: int, target: float, options: Recons
             except ValueError:
                 continue
             highest = max(highest, g)
+            if g < genus:
+                below.append((-g, len(below), hull, (res, closing)))
             if g != genus:
                 continue
-            m, _ = remesh(hull, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.max_faces))
-            v, f = m.to_numpy()
-            if len(f) > options.max_faces or euler_characteristic(m) != 2 - 2 * genus:
-                continue
-            return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces)), (res, closing)
+            m = remeshed(hull)
+            if m is not None:
+                return m, (res, closing), 0
         if highest < genus:
             break
-    return None, None
+    for neg_g, _, hull, grid in sorted(below, key=lambda b: b[:2]):
+        drilled = _tunnels(hull, genus + neg_g, target)
+        m = None if drilled is None else remeshed(drilled)
+        if m is not None:
+            return m, grid, genus + neg_g
+    return None, None, 0
 
 
 def _initial_mesh(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:
@@ -292,11 +360,11 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     lo, hi = visual_hull_bounds(alpha, cams)
     pixel = _pixel_footprint(cams, 0.5 * (lo + hi))
     lengths = options.edge_lengths() if options.remesh else []
-    start, hull_resolution, mesh0 = options.start, None, None
+    start, hull_resolution, mesh0, tunnels = options.start, None, None, 0
     if start == "auto":
         first = lengths[0] if lengths else options.final_edge_length
-        mesh0, hull_resolution = _hull_start(alpha, cams, genus, first * pixel, options)
-        start = "visual_hull" if mesh0 is not None else "primitive"
+        mesh0, hull_resolution, tunnels = _hull_start(alpha, cams, genus, first * pixel, options)
+        start = "primitive" if mesh0 is None else "visual_hull+tunnels" if tunnels else "visual_hull"
     if mesh0 is None:
         mesh0 = _initial_mesh(genus, lo, hi, options)
     state = init_optimizer_state(mesh0, key)
@@ -312,6 +380,7 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
         opt = OptimizeOptions(
             learning_rate=options.learning_rate,
             lambda_=options.lambda_,
+            adam_quantile=options.adam_quantile,
             weights=options.weights,
             views_per_step=options.views_per_step,
             render_kwargs=(("sigma", sigma), ("gamma", options.gamma), ("plan", plan)),
@@ -353,7 +422,8 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     history["compilations"] = {k: compiled[k] - compiled0[k] for k in compiled}
     history["seconds"] = time.perf_counter() - t0
     history["requested_genus"] = genus
-    history["start"] = start  # "visual_hull", "primitive" or "sphere"
+    history["start"] = start  # "visual_hull", "visual_hull+tunnels", "primitive" or "sphere"
+    history["tunnels"] = tunnels  # handles drilled into a visual hull of too low a genus
     history["hull_grid"] = hull_resolution  # (resolution, closing) of the visual-hull start
     mesh = state.mesh
     try:

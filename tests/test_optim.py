@@ -250,6 +250,31 @@ def test_uniform_adam_matches_numpy_reference():
         jg.uniform_adam(0.1, b1=1.0)
 
 
+def test_uniform_adam_quantile_scale_ignores_outliers_and_padding():
+    # numpy reference of one step: shared scale = quantile of sqrt(v_hat) over the
+    # nonzero entries (np.quantile's default linear interpolation), entries above it
+    # use their own sqrt(v_hat)
+    rng = np.random.default_rng(3)
+    g = np.vstack([rng.normal(size=(40, 3)) * 1e-3, np.zeros((8, 3))])
+    g[5, 1] = 10.0  # one outlier entry
+    vh = g * g  # first step: m_hat = g, v_hat = g^2
+    q = np.quantile(vh[vh > 0], 0.9)
+    ref = -0.1 * g / (1e-8 + np.sqrt(np.maximum(q, vh)))
+    with jax.enable_x64(True):
+        opt = jg.uniform_adam(0.1, quantile=0.9)
+        upd, _ = opt.update(jnp.asarray(g), opt.init(jnp.asarray(g)))
+        nic, _ = jg.uniform_adam(0.1).update(jnp.asarray(g), opt.init(jnp.asarray(g)))
+    upd, nic = np.asarray(upd), np.asarray(nic)
+    np.testing.assert_allclose(upd, ref, rtol=1e-10)
+    assert np.all(np.abs(upd) <= 0.1 * (1 + 1e-9))  # nothing steps further than the rate
+    assert np.all(upd[40:] == 0)  # padding does not move
+    # Nicolet's max: the outlier shrinks every other step ~1e4-fold; the quantile does not
+    assert np.median(np.abs(upd[:40])) > 1e3 * np.median(np.abs(nic[:40]))
+    np.testing.assert_allclose(nic, -0.1 * g / (1e-8 + np.abs(g).max()), rtol=1e-10)
+    with pytest.raises(ValueError, match="quantile"):
+        jg.uniform_adam(0.1, quantile=0.0)
+
+
 def test_uniform_adam_in_optimistix_optax_minimiser():
     optx = pytest.importorskip("optimistix")
     target = jnp.asarray([1.0, -2.0, 3.0])

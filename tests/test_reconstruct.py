@@ -3,6 +3,7 @@ import json
 import jax
 import numpy as np
 import pytest
+import trimesh
 
 import jaxgenus as jg
 from jaxgenus.__main__ import main
@@ -36,6 +37,8 @@ def test_bad_inputs_are_named(torus_scene):
         jg.reconstruct(img, cams, 1.5)
     with pytest.raises(ValueError, match="views"):
         jg.reconstruct(img[:5], cams, 1)
+    with pytest.raises(ValueError, match="adam_quantile"):
+        jg.ReconstructOptions(adam_quantile=0.0)
     bad = img.copy()
     bad[0, 3, 3, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
@@ -99,12 +102,42 @@ def test_visual_hull_of_torus_contains_it_and_keeps_the_hole(torus_scene):
         jg.visual_hull(img[:3], cams)
 
 
-def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_differs(torus_scene):
+def test_auto_start_drills_missing_handles_into_a_lower_genus_hull(torus_scene):
+    gt, cams, img = torus_scene
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=4000)
+    rec = jg.reconstruct(img, cams, 3, options=opts)  # the hull has genus 1: 2 handles are added
+    assert rec.history["start"] == "visual_hull+tunnels" and rec.history["tunnels"] == 2
+    assert rec.genus == 3 and rec.genus_ok
+    # the small handles barely change the shape: still close to the torus
+    al = jg.metrics.icp_align(rec.mesh, gt).vertices
+    assert jg.metrics.volume_iou((al, rec.mesh.to_numpy()[1]), gt) > 0.7
+
+
+def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_is_too_high(torus_scene):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=3000)
-    rec = jg.reconstruct(img, cams, 3, options=opts)  # the hull has genus 1, not 3
+    rec = jg.reconstruct(img, cams, 0, options=opts)  # the hull keeps the torus' hole: genus 1, not 0
     assert rec.history["start"] == "primitive" and rec.history["hull_grid"] is None
-    assert rec.genus == 3 and rec.genus_ok
+    assert rec.genus == 0 and rec.genus_ok
+
+
+def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
+    from jaxgenus._reconstruct import _tunnels
+
+    sphere = jg.genus_primitive(0, n_faces=3000)
+    v, f = sphere.to_numpy()
+    size = 0.08
+    out = _tunnels(sphere, 3, size)
+    assert out is not None and jg.is_closed_manifold(out)
+    assert jg.genus(out) == 3 and jg.connected_components(out)[0] == 1
+    vol = lambda m: trimesh.Trimesh(*m.to_numpy(), process=False).volume
+    assert vol(out) == pytest.approx(vol(sphere), rel=0.01)  # three thin half-ring tunnels
+    # every new surface point lies within the torus' reach (1.3 size) of the sphere
+    assert jg.metrics.hausdorff_distance(out, sphere) <= 1.3 * size + 1e-3
+    np.testing.assert_array_equal(sphere.to_numpy()[0], v)  # input untouched
+    assert _tunnels(sphere, 1, 2.0) is None  # a ring larger than the object cannot make a handle
+    crowded = _tunnels(jg.genus_primitive(0, n_faces=200), 50, 0.5)  # overlapping cuts are refused
+    assert crowded is None or (jg.genus(crowded) == 50 and jg.connected_components(crowded)[0] == 1)
 
 
 def test_same_key_same_result(torus_scene):
@@ -121,6 +154,7 @@ def test_same_key_same_result(torus_scene):
 def test_nicolet_baseline_keeps_the_sphere_connectivity(torus_scene):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions.nicolet(n_cycles=2, steps_per_cycle=10, initial_faces=600)
+    assert opts.adam_quantile == 1.0  # Nicolet's uniform Adam: the max, not our robust quantile
     rec = jg.reconstruct(img, cams, 1, options=opts)
     assert rec.genus == 0 and rec.genus_ok  # the baseline cannot change topology
     assert all("remesh_status" not in c for c in rec.history["cycles"])
