@@ -13,6 +13,7 @@ against wall-clock seconds to --out.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import subprocess
@@ -77,9 +78,12 @@ def run_one(args):
     gt, genus = load_shape(spec)
     cams = jg.sphere_cameras(args.views, radius=3.0, fov_deg=40.0, resolution=args.res)
     targets = jg.render_targets(gt, cams)
-    make = jg.ReconstructOptions.nicolet if method == "nicolet" else jg.ReconstructOptions
-    r = run(targets, cams, genus, gt, make(n_cycles=args.cycles, steps_per_cycle=args.steps), args.trace_samples)
-    r.update(shape=spec, true_genus=genus, method=method)
+    opts = jg.ReconstructOptions.nicolet() if method == "nicolet" else jg.ReconstructOptions()
+    fine = spec in args.fine
+    opts = opts.fine() if fine else dataclasses.replace(opts, n_cycles=args.cycles)
+    opts = dataclasses.replace(opts, steps_per_cycle=args.steps)
+    r = run(targets, cams, genus, gt, opts, args.trace_samples)
+    r.update(shape=spec, true_genus=genus, method=method, settings="fine" if fine else "default")
     print(json.dumps(r, default=float))
 
 
@@ -92,6 +96,8 @@ def main():
     ap.add_argument("--cycles", type=int, default=4)
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--trace-samples", type=int, default=10_000)
+    ap.add_argument("--fine", nargs="*", default=["shared:heptoroid"],
+                    help="shapes run with ReconstructOptions.fine() (both methods: thin structures; 5 cycles)")
     ap.add_argument("--out", default="docs")
     ap.add_argument("--resume", action="store_true", help="keep the rows already in OUT/reconstruction_benchmark.json")
     ap.add_argument("--report-only", action="store_true", help="rewrite table and plot from OUT's JSON rows")
@@ -119,7 +125,8 @@ def main():
                 continue
             # one fresh process per run: compiled executables of earlier shapes do not pile up
             cmd = [sys.executable, __file__, "--one", spec, method, "--views", str(args.views), "--res", str(args.res),
-                   "--cycles", str(args.cycles), "--steps", str(args.steps), "--trace-samples", str(args.trace_samples)]
+                   "--cycles", str(args.cycles), "--steps", str(args.steps), "--trace-samples", str(args.trace_samples),
+                   "--fine", *args.fine]
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
                 print(f"{spec} {method}: failed\n{proc.stderr[-2000:]}", flush=True)
@@ -139,15 +146,16 @@ def write_report(rows, args, out: Path):
     order = {spec: k for k, spec in enumerate(args.shapes)}
     rows = sorted(rows, key=lambda r: (order.get(r["shape"], len(order)), r["method"] != "ours"))
     cmd = (f"python benchmarks/reconstruct.py --views {args.views} --res {args.res} --cycles {args.cycles} "
-           f"--steps {args.steps}")
-    head = (f"Settings: {args.views} views at {args.res}^2, {args.cycles} x {args.steps} steps, every run in a fresh "
-            f"process, `{cmd}`\n\n"
-            "| shape | genus | method | start | result genus | CD L1 | CD ours / baseline | CD L2 (PyTorch3D) | IoU "
-            "| faces | seconds |\n|---|---|---|---|---|---|---|---|---|---|---|\n")
+           f"--steps {args.steps} --fine {' '.join(args.fine)}")
+    head = (f"Settings: {args.views} views at {args.res}^2, {args.cycles} x {args.steps} steps (settings `fine`: "
+            f"`ReconstructOptions.fine()` for both methods, 5 x {args.steps}), every run in a fresh process, `{cmd}`\n\n"
+            "| shape | genus | method | settings | start | result genus | CD L1 | CD ours / baseline | CD L2 (PyTorch3D) "
+            "| IoU | faces | seconds |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     base = {r["shape"]: r["cd_l1"] for r in rows if r["method"] == "nicolet"}
     ratio = lambda r: f"{r['cd_l1'] / base[r['shape']]:.2f}" if r["method"] == "ours" and r["shape"] in base else ""
     table = head + "".join(
-        f"| {r['shape']} | {r['true_genus']} | {r['method']} | {r.get('start', '')} | {r['genus']} | {r['cd_l1']:.4f} "
+        f"| {r['shape']} | {r['true_genus']} | {r['method']} | {r.get('settings', 'default')} | {r.get('start', '')} "
+        f"| {r['genus']} | {r['cd_l1']:.4f} "
         f"| {ratio(r)} | {r['cd_l2']:.2e} | {r['iou']:.3f} | {r['faces']} | {r['seconds']:.0f} |\n" for r in rows)
     print(table)
     (out / "reconstruction_benchmark.md").write_text(table)

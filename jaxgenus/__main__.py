@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -106,9 +107,9 @@ def _write(rec, out):
 def _reconstruct(args) -> int:
     import jaxgenus as jg
 
-    opts = jg.ReconstructOptions(n_cycles=args.cycles, steps_per_cycle=args.steps)
-    if args.nicolet:
-        opts = jg.ReconstructOptions.nicolet(n_cycles=args.cycles, steps_per_cycle=args.steps)
+    opts = jg.ReconstructOptions.nicolet() if args.nicolet else jg.ReconstructOptions()
+    opts = opts.fine() if args.fine else opts
+    opts = dataclasses.replace(opts, n_cycles=args.cycles or opts.n_cycles, steps_per_cycle=args.steps)
     gt = None
     if args.mesh:
         gt = jg.load_mesh(args.mesh)
@@ -160,9 +161,11 @@ def main(argv=None) -> int:
     r.add_argument("--genus", type=int, required=True)
     r.add_argument("--views", type=int, default=24)
     r.add_argument("--res", type=int, default=128)
-    r.add_argument("--cycles", type=int, default=4)
+    r.add_argument("--cycles", type=int, default=None, help="optimize/remesh cycles (default 4; 5 with --fine)")
     r.add_argument("--steps", type=int, default=150)
     r.add_argument("--nicolet", action="store_true", help="the Nicolet et al. 2021 baseline (sphere, no remeshing)")
+    r.add_argument("--fine", action="store_true", help="settings for thin structures a few pixels wide "
+                   "(ReconstructOptions.fine(): sharper edges, up to 20k faces, 5 cycles)")
     r.add_argument("--out", default="jaxgenus_out/reconstruction.obj")
     r.set_defaults(run=_reconstruct)
     d = sub.add_parser("demo", help="reconstruct a built-in scene and print chamfer, IoU and genus")

@@ -122,6 +122,21 @@ class ReconstructOptions:
         base.update(overrides)
         return cls(**base)
 
+    def fine(self) -> "ReconstructOptions":
+        """A copy set up for thin structures a few pixels wide (e.g. tubes 4-6 px across).
+
+        Sharper edges (`sigma` 0.03 px: at the default 0.1 the outward tails of
+        the contour faces bias silhouettes out, and the fit thins such tubes by
+        ~9 % in volume), a finer mesh (1.4 -> 1.0 px edges, up to 20k faces) and
+        5 cycles with a slower step decay (0.7). About twice the time of the
+        defaults. `ReconstructOptions.nicolet().fine()` is the baseline at the same
+        renderer and schedule. On thick shapes the defaults converge better.
+        """
+        return dataclasses.replace(
+            self, sigma=0.03, lr_decay=0.7, n_cycles=5, max_faces=max(self.max_faces, 20000),
+            initial_edge_length=1.4, final_edge_length=1.0,
+        )
+
     def edge_lengths(self) -> list[float]:
         """Target edge length of each remesh in pixels (coarse to fine)."""
         n = self.n_cycles - 1

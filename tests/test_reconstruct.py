@@ -172,3 +172,12 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
     assert jg.genus(jg.load_mesh(out)) == 1
     hist = json.loads(out.with_suffix(".json").read_text())
     assert len(hist["loss"]) == 20 and len(hist["cycles"]) == 2
+
+
+def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
+    ours, base = jg.ReconstructOptions().fine(), jg.ReconstructOptions.nicolet().fine()
+    for o in (ours, base):
+        assert (o.sigma, o.lr_decay, o.n_cycles) == (0.03, 0.7, 5)
+    assert ours.remesh and ours.start == "auto" and ours.max_faces == 20000 and ours.adam_quantile == 0.99
+    assert not base.remesh and base.start == "sphere" and base.adam_quantile == 1.0  # still the baseline
+    assert ours.edge_lengths()[0] == 1.4 and ours.edge_lengths()[-1] == pytest.approx(1.0)
