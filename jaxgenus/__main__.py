@@ -109,7 +109,7 @@ def _reconstruct(args) -> int:
 
     opts = jg.ReconstructOptions.nicolet() if args.nicolet else jg.ReconstructOptions()
     opts = opts.fine() if args.fine else opts
-    opts = dataclasses.replace(opts, n_cycles=args.cycles or opts.n_cycles, steps_per_cycle=args.steps)
+    opts = dataclasses.replace(opts, n_cycles=args.cycles or opts.n_cycles, steps_per_cycle=args.steps, one_jit=args.one_jit)
     gt = None
     if args.mesh:
         gt = jg.load_mesh(args.mesh)
@@ -139,7 +139,7 @@ def _demo(args) -> int:
     images = jg.render_targets(gt, cams)
     print(f"scene {args.scene!r} (genus {g}, {int(gt.n_faces)} faces): {args.views} target views at {args.res}px "
           f"rendered in {time.perf_counter() - t0:.1f}s")
-    opts = jg.ReconstructOptions(n_cycles=args.cycles, steps_per_cycle=args.steps)
+    opts = jg.ReconstructOptions(n_cycles=args.cycles, steps_per_cycle=args.steps, one_jit=args.one_jit)
     rec = jg.reconstruct(images, cams, g, options=opts, callback=_progress(opts.n_cycles))
     _report(rec, gt)
     _write(rec, Path(args.out) / f"{args.scene}.obj")
@@ -166,6 +166,7 @@ def main(argv=None) -> int:
     r.add_argument("--nicolet", action="store_true", help="the Nicolet et al. 2021 baseline (sphere, no remeshing)")
     r.add_argument("--fine", action="store_true", help="settings for thin structures a few pixels wide "
                    "(ReconstructOptions.fine(): sharper edges, up to 20k faces, 5 cycles)")
+    r.add_argument("--one-jit", action="store_true", help="all cycles in one compiled scan (ReconstructOptions.one_jit)")
     r.add_argument("--out", default="jaxgenus_out/reconstruction.obj")
     r.set_defaults(run=_reconstruct)
     d = sub.add_parser("demo", help="reconstruct a built-in scene and print chamfer, IoU and genus")
@@ -174,6 +175,7 @@ def main(argv=None) -> int:
     d.add_argument("--res", type=int, default=64)
     d.add_argument("--cycles", type=int, default=4)
     d.add_argument("--steps", type=int, default=150)
+    d.add_argument("--one-jit", action="store_true", help="all cycles in one compiled scan (ReconstructOptions.one_jit)")
     d.add_argument("--out", default="jaxgenus_out")
     d.set_defaults(run=_demo)
     args = parser.parse_args(argv)

@@ -29,6 +29,7 @@ import time
 
 import equinox as eqx
 import jax
+from jax.experimental import io_callback
 import jax.numpy as jnp
 import numpy as np
 
@@ -36,7 +37,14 @@ from jaxgenus._cameras import Cameras
 from jaxgenus._energies import LossWeights
 from jaxgenus._hull import split_targets, visual_hull, visual_hull_bounds
 from jaxgenus._mesh import Mesh, capacity_bucket
-from jaxgenus._optimize import OptimizeOptions, OptimizerState, _optimize_block_jit, init_optimizer_state, optimize_block
+from jaxgenus._optimize import (
+    OptimizeOptions,
+    OptimizerState,
+    _optimize_block,
+    _optimize_block_jit,
+    init_optimizer_state,
+    optimize_block,
+)
 from jaxgenus._primitives import genus_primitive
 from jaxgenus._remesh import RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus._render import RasterPlan, _render_jit, plan_render, render
@@ -74,6 +82,12 @@ class ReconstructOptions:
             added as small tunnels under its surface; else the genus-g primitive),
             `"primitive"` (always the genus-g primitive) or `"sphere"` (genus 0).
         hull_resolutions: grid sizes tried, in order, for the visual-hull start.
+        one_jit: run all cycles (optimizer blocks and FFI remeshes) as one
+            jit-compiled `lax.scan` with one rasterizer plan sized for the final
+            face count, instead of one compiled block per cycle driven from Python
+            (which re-plans the rasterizer from the geometry every cycle). One
+            compilation per run; `callback` is then called after the run, once per
+            cycle, with that cycle's row and mesh.
     """
 
     n_cycles: int = 4
@@ -94,6 +108,7 @@ class ReconstructOptions:
     remesh: bool = True
     start: str = "auto"
     hull_resolutions: tuple[int, ...] = (64, 48, 80)
+    one_jit: bool = False
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "max_faces"):
@@ -321,8 +336,7 @@ def _plan_bucket(plan: RasterPlan) -> RasterPlan:
     )
 
 
-@jax.jit(static_argnames=("options",))
-def _remesh_state(state: OptimizerState, target, options: RemeshOptions):
+def _remesh_state_impl(state: OptimizerState, target, options: RemeshOptions):
     """Remesh the state's mesh (FFI), carrying the Adam moments; rest shape := new shape."""
     adam = state.adam
     attrs = jnp.concatenate([adam.mu, adam.nu], axis=1)
@@ -335,10 +349,103 @@ def _remesh_state(state: OptimizerState, target, options: RemeshOptions):
     return new_state, info
 
 
+_remesh_state = jax.jit(_remesh_state_impl, static_argnames=("options",))
+
+
+def _clock_us(_after) -> np.ndarray:
+    """Host clock in microseconds mod 2^31 (int32), read once `_after` is computed."""
+    return np.int32(time.perf_counter_ns() // 1000 % (1 << 31))
+
+
+@jax.jit(static_argnames=("n_steps", "opt", "remesh_options"), donate_argnames=("state",))
+def _all_cycles(state, cams, targets, lr_scales, lengths, *, n_steps, opt, remesh_options):
+    """Every cycle in one `lax.scan`: optimizer block, overflow count, remesh when `length > 0`."""
+    kw = dict(opt.render_kwargs)
+    clock = jax.ShapeDtypeStruct((), jnp.int32)
+
+    def cycle(state, xs):
+        lr_scale, length = xs
+        state, record = _optimize_block(state, cams, targets, n_steps, opt, lr_scale)
+        _, info = render(state.mesh, cams, channels=("alpha",), sigma=kw["sigma"], plan=kw["plan"], return_info=True)
+        t_opt = io_callback(_clock_us, clock, record["loss"][-1], ordered=True)
+        state, status = jax.lax.cond(
+            length > 0,
+            lambda s: (lambda out: (out[0], out[1].status))(_remesh_state_impl(s, length, remesh_options)),
+            lambda s: (s, jnp.int32(-1)),
+            state,
+        )
+        t_end = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
+        out = dict(record=record, overflow=info.n_overflow, status=status, mesh=state.mesh, clock=(t_opt, t_end))
+        return state, out
+
+    return jax.lax.scan(cycle, state, (lr_scales, lengths))
+
+
 def _compiled() -> dict:
     """Compiled-executable counts of the jitted pieces of the loop (for the history)."""
-    fns = {"optimize_block": _optimize_block_jit, "remesh": _remesh_state, "render": _render_jit}
+    fns = {"optimize_block": _optimize_block_jit, "remesh": _remesh_state, "render": _render_jit, "all_cycles": _all_cycles}
     return {k: (f._cache_size() if hasattr(f, "_cache_size") else 0) for k, f in fns.items()}
+
+
+def _optimize_options(options: ReconstructOptions, plan: RasterPlan) -> OptimizeOptions:
+    return OptimizeOptions(
+        learning_rate=options.learning_rate,
+        lambda_=options.lambda_,
+        adam_quantile=options.adam_quantile,
+        weights=options.weights,
+        views_per_step=options.views_per_step,
+        render_kwargs=(("sigma", options.sigma), ("gamma", options.gamma), ("plan", plan)),
+    )
+
+
+def _run_one_jit(state, cams, targets, lengths, pixel, options, remesh_options, t0, callback):
+    """All cycles in one compiled scan (`options.one_jit`); returns what the Python loop builds."""
+    n = options.n_cycles
+    # one plan for the whole run, sized for the face count the last remesh asks for
+    faces0 = int(state.mesh.n_faces)
+    growth = 1.0 if not lengths else min(options.max_faces / faces0, (lengths[0] / lengths[-1]) ** 2)
+    plan = _plan_bucket(plan_render(state.mesh, cams, sigma=options.sigma, face_margin=1.3 * max(growth, 1.0)))
+    world = [lengths[c] * pixel if c < len(lengths) else 0.0 for c in range(n)]
+    lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
+    state, out = _all_cycles(
+        state, cams, targets, lr_scales, jnp.asarray(world, jnp.float32),
+        n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan), remesh_options=remesh_options,
+    )
+    out = jax.device_get(out)
+    steps, cycles = [], []
+    t_opt, t_end = (np.asarray(t, np.int64) for t in out["clock"])
+    wall = time.perf_counter() - t0
+    # the clock wraps at 2^31 us (36 min): differences modulo 2^31
+    elapsed_end = (t_end - t_end[-1]) % (1 << 31)
+    elapsed_end = np.where(elapsed_end > (1 << 30), elapsed_end - (1 << 31), elapsed_end) * 1e-6 + wall
+    elapsed_opt = elapsed_end - ((t_end - t_opt) % (1 << 31)) * 1e-6
+    for c in range(n):
+        record = {k: np.asarray(v[c]) for k, v in out["record"].items()}
+        record["time"] = np.full(options.steps_per_cycle, np.nan)
+        record["time"][-1] = elapsed_end[c]
+        steps.append(record)
+        m = jax.tree.map(lambda a: a[c], out["mesh"])
+        row = {"cycle": c}
+        if world[c] > 0:
+            row["remesh_status"] = RemeshStatus(int(out["status"][c])).name
+            row["remesh_seconds"] = float(elapsed_end[c] - elapsed_opt[c])
+        row.update(
+            faces=int(m.n_faces),
+            vertices=int(m.n_vertices),
+            chi=euler_characteristic(m),
+            loss=float(record["loss"][-1]),
+            truncated_faces=int(out["overflow"][c]),
+            compilations=0,
+            seconds=float(elapsed_end[c] - (elapsed_end[c - 1] if c else 0.0)),
+            elapsed=float(elapsed_end[c]),
+        )
+        cycles.append(row)
+    if callback is not None:
+        tb = time.perf_counter()
+        for c in range(n):
+            callback(cycles[c], jax.tree.map(lambda a: jnp.asarray(a[c]), out["mesh"]))
+        t0 += time.perf_counter() - tb
+    return state, steps, cycles, {plan}, t0
 
 
 def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOptions = ReconstructOptions(), key=None, callback=None) -> Reconstruction:
@@ -388,18 +495,15 @@ def reconstruct(images, cams: Cameras, genus: int, *, options: ReconstructOption
     steps, cycles, plans = [], [], set()
     sigma = options.sigma
     compiled0 = compiled = _compiled()
-    for c in range(options.n_cycles):
+    if options.one_jit:
+        state, steps, cycles, plans, t0 = _run_one_jit(state, cams, targets, lengths, pixel, options, remesh_options, t0, callback)
+        compiled = _compiled()
+        cycles[0]["compilations"] = sum(compiled.values()) - sum(compiled0.values())
+    for c in range(options.n_cycles if not options.one_jit else 0):
         tc = time.perf_counter()
         plan = _plan_bucket(plan_render(state.mesh, cams, sigma=sigma, face_margin=1.3))
         plans.add(plan)
-        opt = OptimizeOptions(
-            learning_rate=options.learning_rate,
-            lambda_=options.lambda_,
-            adam_quantile=options.adam_quantile,
-            weights=options.weights,
-            views_per_step=options.views_per_step,
-            render_kwargs=(("sigma", sigma), ("gamma", options.gamma), ("plan", plan)),
-        )
+        opt = _optimize_options(options, plan)
         lr_scale = options.lr_decay**c
         state, record = optimize_block(state, cams, targets, n_steps=options.steps_per_cycle, options=opt, lr_scale=lr_scale)
         record = jax.device_get(record)

@@ -181,3 +181,25 @@ def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
     assert ours.remesh and ours.start == "auto" and ours.max_faces == 20000 and ours.adam_quantile == 0.99
     assert not base.remesh and base.start == "sphere" and base.adam_quantile == 1.0  # still the baseline
     assert ours.edge_lengths()[0] == 1.4 and ours.edge_lengths()[-1] == pytest.approx(1.0)
+
+
+def test_one_jit_runs_every_cycle_in_one_compiled_scan(torus_scene):
+    gt, cams, img = torus_scene
+    opts = jg.ReconstructOptions(n_cycles=3, steps_per_cycle=100, one_jit=True)
+    seen = []
+    rec = jg.reconstruct(img, cams, 1, options=opts, callback=lambda row, m: seen.append((row, jg.genus(m), int(m.n_faces))))
+    h = rec.history
+    assert rec.genus == 1 and rec.genus_ok
+    assert h["compilations"]["all_cycles"] <= 1 and h["compilations"]["optimize_block"] == 0
+    assert h["compilations"]["remesh"] == 0 and h["render_plans"] == 1
+    assert len(h["loss"]) == 300 and np.all(np.isfinite(h["loss"]))
+    assert [r["cycle"] for r, _, _ in seen] == [0, 1, 2]
+    assert [g for _, g, _ in seen] == [1, 1, 1]  # the per-cycle meshes come out of the scan
+    assert [r["faces"] for r, _, _ in seen] == [n for _, _, n in seen]
+    assert all(r["remesh_status"] in ("OK", "CAPACITY_EXCEEDED") for r, _, _ in seen[:2])
+    assert "remesh_status" not in seen[2][0]  # no remesh after the last cycle
+    assert all(r["truncated_faces"] == 0 for r, _, _ in seen)
+    elapsed = [r["elapsed"] for r, _, _ in seen]
+    assert elapsed == sorted(elapsed) and elapsed[-1] <= h["seconds"] + 1e-6
+    al = jg.metrics.icp_align(rec.mesh, gt).vertices
+    assert jg.metrics.volume_iou((al, rec.mesh.to_numpy()[1]), gt) >= 0.8
