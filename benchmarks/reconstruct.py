@@ -81,9 +81,10 @@ def run_one(args):
     opts = jg.ReconstructOptions.nicolet() if method == "nicolet" else jg.ReconstructOptions()
     fine = spec in args.fine
     opts = opts.fine() if fine else dataclasses.replace(opts, n_cycles=args.cycles)
-    opts = dataclasses.replace(opts, steps_per_cycle=args.steps)
+    opts = dataclasses.replace(opts, steps_per_cycle=args.steps, one_jit=args.one_jit)
     r = run(targets, cams, genus, gt, opts, args.trace_samples)
-    r.update(shape=spec, true_genus=genus, method=method, settings="fine" if fine else "default")
+    settings = ("fine" if fine else "default") + ("+one_jit" if args.one_jit else "")
+    r.update(shape=spec, true_genus=genus, method=method, settings=settings)
     print(json.dumps(r, default=float))
 
 
@@ -98,6 +99,8 @@ def main():
     ap.add_argument("--trace-samples", type=int, default=10_000)
     ap.add_argument("--fine", nargs="*", default=["shared:heptoroid"],
                     help="shapes run with ReconstructOptions.fine() (both methods: thin structures; 5 cycles)")
+    ap.add_argument("--one-jit", action="store_true", help="ReconstructOptions.one_jit for both methods")
+    ap.add_argument("--methods", nargs="+", default=["ours", "nicolet"], choices=["ours", "nicolet"])
     ap.add_argument("--out", default="docs")
     ap.add_argument("--resume", action="store_true", help="keep the rows already in OUT/reconstruction_benchmark.json")
     ap.add_argument("--report-only", action="store_true", help="rewrite table and plot from OUT's JSON rows")
@@ -120,13 +123,13 @@ def main():
         if spec.startswith("shared:") and shared_dir() is None:
             print(f"skip {spec}: ../shared/meshes is absent")
             continue
-        for method in ("ours", "nicolet"):
+        for method in args.methods:
             if (spec, method) in done:
                 continue
             # one fresh process per run: compiled executables of earlier shapes do not pile up
             cmd = [sys.executable, __file__, "--one", spec, method, "--views", str(args.views), "--res", str(args.res),
                    "--cycles", str(args.cycles), "--steps", str(args.steps), "--trace-samples", str(args.trace_samples),
-                   "--fine", *args.fine]
+                   "--fine", *args.fine] + (["--one-jit"] if args.one_jit else [])
             proc = subprocess.run(cmd, capture_output=True, text=True)
             if proc.returncode != 0:
                 print(f"{spec} {method}: failed\n{proc.stderr[-2000:]}", flush=True)
@@ -146,7 +149,7 @@ def write_report(rows, args, out: Path):
     order = {spec: k for k, spec in enumerate(args.shapes)}
     rows = sorted(rows, key=lambda r: (order.get(r["shape"], len(order)), r["method"] != "ours"))
     cmd = (f"python benchmarks/reconstruct.py --views {args.views} --res {args.res} --cycles {args.cycles} "
-           f"--steps {args.steps} --fine {' '.join(args.fine)}")
+           f"--steps {args.steps} --fine {' '.join(args.fine)}" + (" --one-jit" if args.one_jit else ""))
     head = (f"Settings: {args.views} views at {args.res}^2, {args.cycles} x {args.steps} steps (settings `fine`: "
             f"`ReconstructOptions.fine()` for both methods, 5 x {args.steps}), every run in a fresh process, `{cmd}`\n\n"
             "| shape | genus | method | settings | start | result genus | CD L1 | CD ours / baseline | CD L2 (PyTorch3D) "

@@ -404,7 +404,13 @@ def _run_one_jit(state, cams, targets, lengths, pixel, options, remesh_options, 
     # one plan for the whole run, sized for the face count the last remesh asks for
     faces0 = int(state.mesh.n_faces)
     growth = 1.0 if not lengths else min(options.max_faces / faces0, (lengths[0] / lengths[-1]) ** 2)
-    plan = _plan_bucket(plan_render(state.mesh, cams, sigma=options.sigma, face_margin=1.3 * max(growth, 1.0)))
+    plan = plan_render(state.mesh, cams, sigma=options.sigma, face_margin=1.3 * max(growth, 1.0))
+    # the shape changes under this plan: keep a big tier (faces up to twice the window
+    # or the largest now, for an eighth of the budget) for faces that grow or stretch
+    plan = _plan_bucket(RasterPlan(
+        window=plan.window, max_faces=plan.max_faces, big_window=max(plan.big_window, 2 * plan.window),
+        max_big_faces=max(plan.max_big_faces, plan.max_faces // 8),
+    ))
     world = [lengths[c] * pixel if c < len(lengths) else 0.0 for c in range(n)]
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
     state, out = _all_cycles(
