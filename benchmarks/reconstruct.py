@@ -69,7 +69,7 @@ def run(targets, cams, genus, gt, options, trace_samples):
     cd = jg.metrics.chamfer_distance((aligned, f), gt)
     iou = jg.metrics.volume_iou((aligned, f), gt)
     return dict(cd_l1=cd.l1, cd_l2=cd.l2_pytorch3d, iou=iou, genus=rec.genus, faces=int(rec.mesh.n_faces),
-                seconds=rec.history["seconds"], start=rec.history["start"], trace=trace)
+                seconds=rec.history["seconds"], start=rec.history["start"], fine=rec.history["fine"], trace=trace)
 
 
 def run_one(args):
@@ -83,7 +83,7 @@ def run_one(args):
     opts = opts.fine() if fine else dataclasses.replace(opts, n_cycles=args.cycles)
     opts = dataclasses.replace(opts, steps_per_cycle=args.steps, one_jit=args.one_jit)
     r = run(targets, cams, genus, gt, opts, args.trace_samples)
-    settings = ("fine" if fine else "default") + ("+one_jit" if args.one_jit else "")
+    settings = ("fine" if fine else "fine (auto)" if r["fine"] else "default") + ("+one_jit" if args.one_jit else "")
     r.update(shape=spec, true_genus=genus, method=method, settings=settings)
     print(json.dumps(r, default=float))
 
@@ -97,8 +97,9 @@ def main():
     ap.add_argument("--cycles", type=int, default=4)
     ap.add_argument("--steps", type=int, default=150)
     ap.add_argument("--trace-samples", type=int, default=10_000)
-    ap.add_argument("--fine", nargs="*", default=["shared:heptoroid"],
-                    help="shapes run with ReconstructOptions.fine() (both methods: thin structures; 5 cycles)")
+    ap.add_argument("--fine", nargs="*", default=[],
+                    help="shapes forced to ReconstructOptions.fine() (both methods; without it, reconstruct switches "
+                         "to fine() by itself for thin shapes: options.fine_below)")
     ap.add_argument("--one-jit", action="store_true", help="ReconstructOptions.one_jit for both methods")
     ap.add_argument("--methods", nargs="+", default=["ours", "nicolet"], choices=["ours", "nicolet"])
     ap.add_argument("--out", default="docs")
@@ -149,9 +150,11 @@ def write_report(rows, args, out: Path):
     order = {spec: k for k, spec in enumerate(args.shapes)}
     rows = sorted(rows, key=lambda r: (order.get(r["shape"], len(order)), r["method"] != "ours"))
     cmd = (f"python benchmarks/reconstruct.py --views {args.views} --res {args.res} --cycles {args.cycles} "
-           f"--steps {args.steps} --fine {' '.join(args.fine)}" + (" --one-jit" if args.one_jit else ""))
+           f"--steps {args.steps}" + (f" --fine {' '.join(args.fine)}" if args.fine else "")
+           + (" --one-jit" if args.one_jit else ""))
     head = (f"Settings: {args.views} views at {args.res}^2, {args.cycles} x {args.steps} steps (settings `fine`: "
-            f"`ReconstructOptions.fine()` for both methods, 5 x {args.steps}), every run in a fresh process, `{cmd}`\n\n"
+            f"`ReconstructOptions.fine()`, 5 x {args.steps}; `fine (auto)`: chosen by `reconstruct` for a visual hull "
+            f"thinner than `fine_below`), every run in a fresh process, `{cmd}`\n\n"
             "| shape | genus | method | settings | start | result genus | CD L1 | CD ours / baseline | CD L2 (PyTorch3D) "
             "| IoU | faces | seconds |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     base = {r["shape"]: r["cd_l1"] for r in rows if r["method"] == "nicolet"}

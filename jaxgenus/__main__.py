@@ -84,7 +84,8 @@ def _report(rec, gt=None):
     import jaxgenus as jg
 
     print(f"genus {rec.genus} (requested {rec.history['requested_genus']})  faces {int(rec.mesh.n_faces)}"
-          f"  time {rec.history['seconds']:.1f}s")
+          f"  time {rec.history['seconds']:.1f}s  start {rec.history['start']}"
+          + ("  (thin visual hull: fine() settings)" if rec.history["fine"] else ""))
     if gt is not None:
         cd = jg.metrics.chamfer_distance(rec.mesh, gt, n_samples=30_000)
         iou = jg.metrics.volume_iou(rec.mesh, gt, n_samples=100_000)

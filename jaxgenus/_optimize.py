@@ -76,6 +76,11 @@ class OptimizeOptions:
         views_per_step: number of cameras sampled (without replacement) per step;
             `None` uses all of them every step.
         cg_rtol, cg_max_iter: stopping rule of the CG solves.
+        average: the block returns the exponential moving average of its iterates,
+            `x_avg <- average * x_avg + (1 - average) * x` after every step (from
+            the block's starting `x`), instead of the last iterate; 0 (default) is
+            off. About the last `1 / (1 - average)` steps are averaged, which
+            removes most of the step noise of sampled views at a fixed step size.
         renderer: `renderer(mesh, cameras, channels=..., **render_kwargs)`;
             `None` is `jaxgenus.render`.
         render_kwargs: extra keyword arguments of the renderer as `(name, value)` pairs
@@ -92,6 +97,7 @@ class OptimizeOptions:
     views_per_step: int | None = None
     cg_rtol: float = 1e-6
     cg_max_iter: int = 2000
+    average: float = 0.0
     renderer: Callable | None = None
     render_kwargs: tuple = ()
 
@@ -102,6 +108,8 @@ class OptimizeOptions:
             raise ValueError(f"lambda_ must be >= 0, got {self.lambda_}")
         if self.views_per_step is not None and self.views_per_step < 1:
             raise ValueError(f"views_per_step must be None or >= 1, got {self.views_per_step}")
+        if not (isinstance(self.average, (int, float)) and 0.0 <= self.average < 1.0):
+            raise ValueError(f"average must be in [0, 1), got {self.average!r}")
         if not isinstance(self.weights, LossWeights):
             raise ValueError(f"weights must be a LossWeights, got {type(self.weights).__name__}")
         if not isinstance(self.render_kwargs, tuple):
@@ -160,6 +168,7 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
     adam = options.adam()
     n_views = len(cameras)
     k = options.views_per_step
+    avg = options.average
 
     def loss_fn(x, cams, tgt):
         m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
@@ -176,7 +185,7 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
     solve = lambda b, x0: largesteps_solve(laplacian, b, lam, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
 
     def step(carry, _):
-        x, u, gu_prev, adam_state, key = carry
+        x, u, gu_prev, adam_state, key, xa = carry
         key, sub = jax.random.split(key)
         if k is None or k >= n_views:
             cams, tgt = cameras, targets
@@ -193,6 +202,7 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
         ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
         x, u, gu, adam_state = keep((new_x, new_u, gu, new_adam), (x, u, gu_prev, adam_state))
+        xa = avg * xa + (1.0 - avg) * x if avg > 0 else x
         status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
         zero = jnp.zeros((), x.dtype)
         record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion")}
@@ -205,12 +215,12 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
             inverted_faces=_inverted_count(x, state.rest_vertices, mesh.faces, fmask),
             status=status,
         )
-        return (x, u, gu, adam_state, key), record
+        return (x, u, gu, adam_state, key, xa), record
 
     x0 = mesh.vertices
     u0 = jnp.where(vmask, to_differential(laplacian, x0, lam), 0.0)
-    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key)
-    (x, _, _, adam_state, key), record = jax.lax.scan(step, carry, None, length=n_steps)
+    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key, x0)
+    (_, _, _, adam_state, key, x), record = jax.lax.scan(step, carry, None, length=n_steps)
     new_mesh = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
     new_state = OptimizerState(
         mesh=new_mesh, adam=adam_state, rest_vertices=state.rest_vertices, step=state.step + n_steps, key=key

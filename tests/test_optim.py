@@ -355,6 +355,30 @@ def test_optimize_block_compiles_once_per_bucket_and_samples_views():
         jg.optimize_block(s1, cams, targets[:3], n_steps=1)
 
 
+def test_optimize_block_average_is_the_ema_of_the_iterates():
+    """`average` returns the EMA of the iterates; reference: the iterates of shorter
+    blocks from the same state and key (a block's first j steps do not depend on its length)."""
+    mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
+    base = dict(learning_rate=0.05, renderer=soft_silhouette, views_per_step=2)
+    n, a = 4, 0.7
+    start = lambda: jg.init_optimizer_state(mesh, jax.random.key(3))
+    xs = [np.asarray(mesh.vertices, np.float64)]
+    for j in range(1, n + 1):
+        state, _ = jg.optimize_block(start(), cams, targets, n_steps=j, options=jg.OptimizeOptions(**base))
+        xs.append(np.asarray(state.mesh.vertices, np.float64))
+    ref = xs[0]
+    for x in xs[1:]:
+        ref = a * ref + (1.0 - a) * x
+    state, rec = jg.optimize_block(start(), cams, targets, n_steps=n, options=jg.OptimizeOptions(average=a, **base))
+    got = np.asarray(state.mesh.vertices)
+    np.testing.assert_allclose(got, ref, atol=1e-5)
+    assert np.abs(got - xs[-1]).max() > 1e-3  # not the last iterate
+    assert int(state.step) == n and np.all(got[int(mesh.n_vertices) :] == 0)
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="average"):
+            jg.OptimizeOptions(average=bad)
+
+
 def test_optimize_block_flags_nonfinite_step_and_keeps_state():
     mesh, cams, targets = _fit_problem(resolution=8, n_views=2)
 

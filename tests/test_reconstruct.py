@@ -39,6 +39,10 @@ def test_bad_inputs_are_named(torus_scene):
         jg.reconstruct(img[:5], cams, 1)
     with pytest.raises(ValueError, match="adam_quantile"):
         jg.ReconstructOptions(adam_quantile=0.0)
+    with pytest.raises(ValueError, match="average"):
+        jg.ReconstructOptions(average=1.0)
+    with pytest.raises(ValueError, match="fine_below"):
+        jg.ReconstructOptions(fine_below=-1.0)
     bad = img.copy()
     bad[0, 3, 3, 0] = np.nan
     with pytest.raises(ValueError, match="NaN"):
@@ -75,6 +79,7 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     assert h["compilations"]["remesh"] <= 1
     assert sum(c["compilations"] for c in h["cycles"]) == sum(h["compilations"].values())
     assert h["start"] == "visual_hull"  # the torus' hull is one genus-1 component
+    assert not h["fine"] and h["hull_thickness"] > 5.0 and rec.options == opts  # thick: no fine() switch
     assert h["loss"].shape == (300,) and np.all(np.isfinite(h["loss"]))
     assert h["loss"][-20:].mean() < 0.7 * h["loss"][:5].mean()
     # CAPACITY_EXCEEDED: the remesher coarsened to fit the face budget (still a valid mesh)
@@ -177,10 +182,43 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
 def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
     ours, base = jg.ReconstructOptions().fine(), jg.ReconstructOptions.nicolet().fine()
     for o in (ours, base):
-        assert (o.sigma, o.lr_decay, o.n_cycles) == (0.03, 0.7, 5)
+        assert (o.sigma, o.lr_decay, o.n_cycles, o.average) == (0.03, 0.9, 5, 0.95)
     assert ours.remesh and ours.start == "auto" and ours.max_faces == 20000 and ours.adam_quantile == 0.99
     assert not base.remesh and base.start == "sphere" and base.adam_quantile == 1.0  # still the baseline
     assert ours.edge_lengths()[0] == 1.4 and ours.edge_lengths()[-1] == pytest.approx(1.0)
+
+
+def _torus(major, minor):
+    t = trimesh.creation.torus(major_radius=major, minor_radius=minor, major_sections=96, minor_sections=32)
+    return jg.Mesh.from_numpy(np.asarray(t.vertices, np.float32), np.asarray(t.faces))
+
+
+def test_hull_thickness_matches_a_torus_tube_radius():
+    """2 V / A of a torus is its tube radius: the hull's measure, in pixels, against it."""
+    from jaxgenus._hull import visual_hull_bounds
+    from jaxgenus._reconstruct import _hull_thickness, _pixel_footprint
+
+    cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
+    for minor in (0.05, 0.25):
+        alpha = jg.render_targets(_torus(0.7, minor), cams)[..., 3]
+        lo, hi = visual_hull_bounds(alpha, cams)
+        pixel = _pixel_footprint(cams, 0.5 * (lo + hi))
+        got = _hull_thickness(alpha, cams, 64, pixel)
+        assert got == pytest.approx(minor / pixel, rel=0.3), (minor, got, minor / pixel)
+    assert _hull_thickness(np.zeros((16, 64, 64), np.float32), cams, 64, pixel) == np.inf  # empty: no hull
+
+
+def test_thin_shapes_switch_to_the_fine_preset():
+    cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=64)
+    img = jg.render_targets(_torus(0.7, 0.05), cams)  # tube radius 1.5 px
+    opts = jg.ReconstructOptions(steps_per_cycle=4)
+    rec = jg.reconstruct(img, cams, 1, options=opts)
+    h = rec.history
+    assert h["fine"] and h["hull_thickness"] < opts.fine_below
+    assert rec.options == opts.fine() and len(h["cycles"]) == 5 and h["loss"].shape == (20,)
+    assert rec.genus == 1
+    off = jg.reconstruct(img, cams, 1, options=jg.ReconstructOptions(n_cycles=1, steps_per_cycle=2, fine_below=0.0))
+    assert not off.history["fine"] and off.history["hull_thickness"] is None and off.options.sigma == 0.1
 
 
 def test_one_jit_runs_every_cycle_in_one_compiled_scan(torus_scene):
