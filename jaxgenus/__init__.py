@@ -1,8 +1,10 @@
 """jaxgenus: inverse rendering of watertight triangle meshes of any genus, in JAX.
 
 The public API is flat: everything a user needs is re-exported here from the
-private modules (one concept per module).
+private modules (one concept per module), and `__all__` lists it.
 """
+
+from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, version as _version
 
 from jaxgenus._mesh import Mesh, capacity_bucket
 from jaxgenus._cameras import (
@@ -30,14 +32,9 @@ from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, re
 from jaxgenus._primitives import genus_primitive
 from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
-from jaxgenus._energies import (
-    LossWeights,
-    bilaplacian_energy,
-    image_loss,
-    inversion_penalty,
-    objective,
-    render_channels,
-)
+from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
+from jaxgenus._energies import bilaplacian_energy, inversion_penalty
+from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
 from jaxgenus._largesteps import (
     SolveInfo,
     from_differential,
@@ -53,9 +50,80 @@ from jaxgenus._optimize import (
     init_optimizer_state,
     optimize_block,
 )
-from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
-from jaxgenus._reconstruct import ReconstructOptions, Reconstruction, reconstruct, render_targets
+from jaxgenus._options import ReconstructOptions
+from jaxgenus._history import CycleRecord, History
+from jaxgenus._reconstruct import Reconstruction, reconstruct
 from jaxgenus._hull import visual_hull
-from jaxgenus._scenes import SCENES, builtin_scene
+from jaxgenus._scenes import SCENES, builtin_scene, render_targets
 
-__version__ = "0.1.0"
+try:
+    __version__ = _version("jaxgenus")
+except _PackageNotFoundError:  # imported from a source tree that was never installed
+    __version__ = "0+unknown"
+
+__all__ = [
+    "CHANNEL_SIZES",
+    "Cameras",
+    "CycleRecord",
+    "GradientTransformation",
+    "History",
+    "LossWeights",
+    "Mesh",
+    "MeshReport",
+    "OptimizeOptions",
+    "OptimizerState",
+    "RECORD_KEYS",
+    "RasterPlan",
+    "ReconstructOptions",
+    "Reconstruction",
+    "RemeshInfo",
+    "RemeshOptions",
+    "RemeshStatus",
+    "RenderInfo",
+    "SCENES",
+    "SolveInfo",
+    "UniformAdamState",
+    "UniformLaplacian",
+    "bilaplacian_energy",
+    "builtin_scene",
+    "cameras_from_blender",
+    "cameras_from_opencv",
+    "cameras_from_opengl",
+    "cameras_to_opencv",
+    "cameras_to_opengl",
+    "capacity_bucket",
+    "component_genera",
+    "connected_components",
+    "euler_characteristic",
+    "face_normals",
+    "from_differential",
+    "genus",
+    "genus_primitive",
+    "image_loss",
+    "init_optimizer_state",
+    "inversion_penalty",
+    "is_closed_manifold",
+    "lambda_from_alpha",
+    "largesteps_solve",
+    "load_mesh",
+    "look_at",
+    "mesh_report",
+    "metrics",
+    "objective",
+    "optimize_block",
+    "plan_render",
+    "project",
+    "reconstruct",
+    "remesh",
+    "remesh_in_jit",
+    "render",
+    "render_channels",
+    "render_targets",
+    "save_mesh",
+    "sphere_cameras",
+    "to_differential",
+    "uniform_adam",
+    "uniform_laplacian",
+    "vertex_normals",
+    "visual_hull",
+]

@@ -100,8 +100,7 @@ def _write(rec, out):
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
     jg.save_mesh(rec.mesh, out)
-    hist = {k: (np.asarray(v).tolist() if not isinstance(v, list) else v) for k, v in rec.history.items()}
-    out.with_suffix(".json").write_text(json.dumps(hist, default=float))
+    out.with_suffix(".json").write_text(json.dumps(rec.history.to_json(), default=float))
     print(f"wrote {out} and {out.with_suffix('.json')}")
 
 

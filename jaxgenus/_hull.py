@@ -1,53 +1,37 @@
-"""Target images: validation and the visual-hull bounds used to place the initial shape."""
+"""The silhouettes' visual hull: its bounds, its mesh, and measurements of it.
+
+Host-side numpy and manifold3d (outside `jit`).
+"""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from jaxgenus._cameras import Cameras
+from jaxgenus._mesh import Mesh
+from jaxgenus._targets import check_targets
+from jaxgenus._topology import connected_components
 
-__all__ = ["split_targets", "visual_hull", "visual_hull_bounds"]
-
-
-def split_targets(images, cams) -> tuple[np.ndarray, np.ndarray | None]:
-    """Validate target `images` against `cams`; return `(alpha (N,H,W), normals (N,H,W,3) or None)`.
-
-    `images` is `(N, H, W, 4)` RGBA in [0, 1] (RGB = (n + 1) / 2 world normals,
-    A = silhouette) or `(N, H, W)` / `(N, H, W, 1)` alpha only. The input is not modified.
-    """
-    if not isinstance(cams, Cameras):
-        raise ValueError(f"cams must be a jaxgenus.Cameras, got {type(cams).__name__}")
-    img = np.asarray(images)
-    if img.dtype == bool or not (np.issubdtype(img.dtype, np.floating) or np.issubdtype(img.dtype, np.integer)):
-        raise ValueError(f"images must be a float array in [0, 1], got dtype {img.dtype}")
-    if img.ndim == 3:
-        img = img[..., None]
-    if img.ndim != 4 or img.shape[-1] not in (1, 4):
-        raise ValueError(f"images must have shape (N, H, W, 4), (N, H, W, 1) or (N, H, W), got {np.shape(images)}")
-    n, h, w, _ = img.shape
-    if n != len(cams):
-        raise ValueError(f"images has {n} views but cams has {len(cams)}")
-    if (h, w) != (cams.height, cams.width):
-        raise ValueError(f"images are {h}x{w} but cams expect {cams.height}x{cams.width} (height x width)")
-    img = img.astype(np.float32)
-    if not np.all(np.isfinite(img)):
-        raise ValueError("images contain NaN or inf pixels")
-    if img.min() < 0.0 or img.max() > 1.0:
-        raise ValueError(f"images must lie in [0, 1], got values in [{img.min():.3g}, {img.max():.3g}]")
-    alpha = img[..., -1]
-    empty = np.flatnonzero(alpha.reshape(n, -1).max(axis=1) < 0.5)
-    if empty.size:
-        raise ValueError(f"images: empty silhouettes (no alpha >= 0.5) in views {empty.tolist()}")
-    normals = img[..., :3] * 2.0 - 1.0 if img.shape[-1] == 4 else None
-    return alpha, normals
+__all__ = ["carved_points", "hull_thickness", "largest_component", "visual_hull", "visual_hull_bounds"]
 
 
 def visual_hull_bounds(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned bounds `(lo, hi)` of the visual hull of silhouettes `alpha (N, H, W)`.
 
-    Carves a `resolution^3` grid spanning the region every camera sees (around
-    the least-squares intersection of the optical axes): a point survives when it
-    projects inside the silhouette (alpha >= 0.5) of every view. Host-side numpy.
+    The bounding box of `carved_points`, grown by one grid cell. Host-side numpy.
+    """
+    pts, cell = carved_points(alpha, cams, resolution=resolution)
+    return pts.min(0) - cell, pts.max(0) + cell
+
+
+def carved_points(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, float]:
+    """The points of a `resolution^3` grid inside the visual hull of `alpha (N, H, W)`, and the grid step.
+
+    The grid spans the region every camera sees (around the least-squares
+    intersection of the optical axes); a point survives when it projects inside
+    the silhouette (alpha >= 0.5) of every view. Raises `ValueError` when none does.
     """
     alpha = np.asarray(alpha, np.float32)
     rot = np.asarray(cams.rotation, np.float64)
@@ -79,9 +63,7 @@ def visual_hull_bounds(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[n
         inside &= hit
     if not inside.any():
         raise ValueError("images: the silhouettes are inconsistent with cams (their visual hull is empty)")
-    cell = 2.0 * radius / (resolution - 1)
-    pts = grid[inside]
-    return pts.min(0) - cell, pts.max(0) + cell
+    return grid[inside], 2.0 * radius / (resolution - 1)
 
 
 def _hull_occupancy(alpha: np.ndarray, cams: Cameras, points: np.ndarray) -> np.ndarray:
@@ -127,9 +109,7 @@ def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0
     """
     import manifold3d
 
-    from jaxgenus._mesh import Mesh
-
-    alpha, _ = split_targets(images, cams)
+    alpha = check_targets(images, cams).alpha
     if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
         raise ValueError(f"resolution must be an int >= 8, got {resolution!r}")
     if isinstance(closing, bool) or not isinstance(closing, int) or closing < 0:
@@ -174,3 +154,30 @@ def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0
     if len(f) == 0:
         raise ValueError("images: the visual hull is empty at this resolution")
     return Mesh.from_numpy(v, f)
+
+
+def largest_component(mesh: Mesh) -> Mesh:
+    """The connected component of `mesh` with the most faces (the mesh itself when it has one)."""
+    n, labels = connected_components(mesh)
+    if n == 1:
+        return mesh
+    v, f = mesh.to_numpy()
+    f = f[labels == np.bincount(labels).argmax()]
+    used, f = np.unique(f, return_inverse=True)
+    return Mesh.from_numpy(v[used], f.reshape(-1, 3))
+
+
+def hull_thickness(alpha, cams: Cameras, resolution: int, pixel: float) -> float:
+    """`2 * volume / area` of the largest piece of the visual hull, in units of `pixel` (inf if none).
+
+    A slab's thickness, a tube's radius: how thin the object looks to the cameras.
+    """
+    try:
+        v, f = largest_component(visual_hull(alpha, cams, resolution=resolution)).to_numpy()
+    except ValueError:
+        return math.inf
+    v = v.astype(np.float64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    return float(2.0 * abs(volume) / area / pixel) if area > 0 else math.inf

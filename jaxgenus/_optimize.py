@@ -30,12 +30,21 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from jaxgenus._adam import UniformAdamState, uniform_adam
-from jaxgenus._energies import LossWeights, _raw_normals, objective, render_channels
+from jaxgenus._energies import inverted_face_count
 from jaxgenus._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
+from jaxgenus._loss import LossWeights, objective, render_channels
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import uniform_laplacian
 
-__all__ = ["OptimizeOptions", "OptimizerState", "init_optimizer_state", "optimize_block", "RECORD_KEYS"]
+__all__ = [
+    "OptimizeOptions",
+    "OptimizerState",
+    "RECORD_KEYS",
+    "init_optimizer_state",
+    "optimize_block",
+    "optimize_block_compilations",
+    "optimize_steps",
+]
 
 RECORD_KEYS = (
     "loss",
@@ -153,13 +162,8 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray) -> OptimizerState:
     )
 
 
-def _inverted_count(x, rest, faces, face_mask):
-    n, n0 = _raw_normals(x, faces), _raw_normals(rest, faces)
-    nondegenerate = jnp.sum(n0 * n0, axis=-1) > 0
-    return jnp.sum(face_mask & nondegenerate & (jnp.sum(n * n0, axis=-1) <= 0)).astype(jnp.int32)
-
-
-def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale):
+def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale):
+    """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program)."""
     mesh = state.mesh
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
@@ -212,7 +216,7 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
             cg_iterations_forward=info_f.iterations,
             cg_iterations_backward=info_b.iterations,
             cg_residual=jnp.maximum(info_f.residual, info_b.residual),
-            inverted_faces=_inverted_count(x, state.rest_vertices, mesh.faces, fmask),
+            inverted_faces=inverted_face_count(x, state.rest_vertices, mesh.faces, fmask),
             status=status,
         )
         return (x, u, gu, adam_state, key, xa), record
@@ -228,7 +232,12 @@ def _optimize_block(state: OptimizerState, cameras, targets, n_steps: int, optio
     return new_state, {name: record[name] for name in RECORD_KEYS}
 
 
-_optimize_block_jit = jax.jit(_optimize_block, static_argnames=("n_steps", "options"), donate_argnames=("state",))
+_optimize_block_jit = jax.jit(optimize_steps, static_argnames=("n_steps", "options"), donate_argnames=("state",))
+
+
+def optimize_block_compilations() -> int:
+    """Number of executables `optimize_block` has compiled in this process (one per static configuration)."""
+    return _optimize_block_jit._cache_size() if hasattr(_optimize_block_jit, "_cache_size") else 0
 
 
 def optimize_block(

@@ -61,7 +61,9 @@ class RemeshOptions:
 
     Lengths are absolute (mesh units). `None` selects the default shown, where
     `h` is `target_edge_length` or, when that is `None`, the mean edge length of
-    the input mesh.
+    the input mesh. The fields mirror the native option list
+    (`JAXGENUS_REMESH_PARAMS`, exported as `_native.REMESH_PARAMS`) plus
+    `max_faces`; `_native_params` converts them (see docs/remesh.md).
 
     Attributes:
         target_edge_length: uniform target `h` (`None`: the input's mean edge length).
@@ -125,20 +127,33 @@ class RemeshOptions:
         if self.max_faces is not None and int(self.max_faces) < 4:
             raise ValueError(f"max_faces must be >= 4, got {self.max_faces!r}")
 
-    def _static_args(self) -> dict:
-        """The options other than the target length, typed for the FFI (0 = default)."""
-        return dict(
-            iterations=np.int32(self.iterations),
-            adaptive=np.int32(bool(self.adaptive)),
-            approx_error=np.float32(self.approx_error or 0.0),
-            min_edge_length=np.float32(self.min_edge_length or 0.0),
-            max_edge_length=np.float32(self.max_edge_length or 0.0),
-            coarsen_factor=np.float32(self.coarsen_factor or 0.0),
-            smoothing_steps=np.int32(self.smoothing_steps),
-            smoothing_lambda=np.float32(self.smoothing_lambda),
-            project=np.int32(bool(self.project)),
-            debug_validate=np.int32(bool(self.debug_validate)),
-        )
+    def _native_params(self, skip: tuple[str, ...] = ()) -> dict:
+        """The options typed for the kernel, generated from the native list `_native.REMESH_PARAMS`.
+
+        Every native option takes the field of the same name: `None` -> 0 (the
+        kernel's "use the default"), a bool field -> 0/1, then a cast to the native
+        dtype. `max_faces` is not a native option (it is the face budget argument);
+        `skip` leaves out names passed otherwise (`target_edge_length` is a 0-d
+        operand of the FFI call).
+        """
+        out = {}
+        for name, dtype, _default, _doc in native.REMESH_PARAMS:
+            if name in skip:
+                continue
+            value = getattr(self, name)
+            if value is None:
+                value = 0
+            elif isinstance(_PYTHON_DEFAULTS[name], bool):
+                value = bool(value)
+            elif isinstance(value, jax.Array):
+                value = value.item()  # a concrete target_edge_length outside jit
+            out[name] = np.dtype(dtype).type(value)
+        return out
+
+
+# RemeshOptions fields that are not native options (REMESH_PARAMS): the face budget.
+_PYTHON_ONLY_OPTIONS = ("max_faces",)
+_PYTHON_DEFAULTS = {f.name: f.default for f in dataclasses.fields(RemeshOptions)}
 
 
 class RemeshInfo(eqx.Module):
@@ -171,8 +186,8 @@ class RemeshInfo(eqx.Module):
 
     @staticmethod
     def _from_info(info, **extra) -> "RemeshInfo":
-        names = ("status", "n_vertices", "n_faces", "faces_estimated", "chi_before", "chi_after", "splits", "collapses", "flips")
-        return RemeshInfo(**{n: info[i] for i, n in enumerate(names)}, **extra)
+        """From the native int32 info vector, whose entries `_native.REMESH_INFO_FIELDS` names."""
+        return RemeshInfo(**{n: info[i] for i, n in enumerate(native.REMESH_INFO_FIELDS)}, **extra)
 
 
 def _check_options(options) -> RemeshOptions:
@@ -219,21 +234,18 @@ def remesh(mesh, options: RemeshOptions | None = None, *, attributes=None) -> tu
             attr = attr[:, None]
         if attr.ndim != 2 or attr.shape[0] != v.shape[0]:
             raise ValueError(f"attributes must have shape (V, k) with V={v.shape[0]}, got {attr.shape}")
-    target = options.target_edge_length
-    if isinstance(target, jax.Array):
-        target = float(target)
     budget = options.max_faces if options.max_faces is not None else 2**30
     v_out, f_out, a_out, info, message, h = native.remesh(
         np.ascontiguousarray(v, np.float64),
         np.ascontiguousarray(f, np.int32),
         attr,
-        target_edge_length=np.float32(target or 0.0),
+        options=options._native_params(),
         face_budget=int(budget),
-        **options._static_args(),
     )
     info = [int(x) for x in info]
-    if info[0] not in (RemeshStatus.OK, RemeshStatus.CAPACITY_EXCEEDED):
-        raise ValueError(f"mesh: cannot remesh ({RemeshStatus(info[0]).name}): {message}")
+    status = info[native.REMESH_INFO_FIELDS.index("status")]
+    if status not in (RemeshStatus.OK, RemeshStatus.CAPACITY_EXCEEDED):
+        raise ValueError(f"mesh: cannot remesh ({RemeshStatus(status).name}): {message}")
     vcap, fcap = capacity_bucket(f_out.shape[0])
     out = Mesh.from_numpy(v_out, f_out, capacity=(max(vcap, v_out.shape[0]), fcap))
     carried = np.asarray(a_out).reshape(v_out.shape[0], -1) if attributes is not None else None
@@ -290,8 +302,9 @@ def remesh_in_jit(
         sg(jnp.stack([mesh.n_vertices, mesh.n_faces]).astype(jnp.int32)),
         sg(attr),
         sg(target),
+        options=options._native_params(skip=("target_edge_length",)),
         max_faces=np.int64(budget),
-        **options._static_args(),
     )
-    out = Mesh(vertices=v.astype(mesh.vertices.dtype), faces=f, n_vertices=info[1], n_faces=info[2])
-    return out, (a if attributes is not None else None), RemeshInfo._from_info(info)
+    info = RemeshInfo._from_info(info)
+    out = Mesh(vertices=v.astype(mesh.vertices.dtype), faces=f, n_vertices=info.n_vertices, n_faces=info.n_faces)
+    return out, (a if attributes is not None else None), info

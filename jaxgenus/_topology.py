@@ -27,20 +27,9 @@ __all__ = [
     "connected_components",
 ]
 
-_FIELDS = (
-    "status",
-    "n_vertices",
-    "n_edges",
-    "n_faces",
-    "euler_characteristic",
-    "boundary_edges",
-    "nonmanifold_edges",
-    "flipped_edges",
-    "nonmanifold_vertices",
-    "degenerate_faces",
-    "n_components",
-    "isolated_vertices",
-)
+# The report's entry names in buffer order, from the one native definition
+# (JAXGENUS_REPORT_FIELDS in native/kernels/mesh_check.h).
+_FIELDS = tuple(native.REPORT_FIELDS)
 
 
 class MeshReport(eqx.Module):

@@ -12,7 +12,7 @@ import jax
 import jax.numpy as jnp
 
 import jaxgenus as jg
-from jaxgenus._energies import LossWeights
+from jaxgenus import LossWeights
 from _soft_silhouette import soft_silhouette
 
 
@@ -330,17 +330,17 @@ def test_fixed_topology_fit_sphere_to_ellipsoid():
 
 
 def test_optimize_block_compiles_once_per_bucket_and_samples_views():
-    from jaxgenus._optimize import _optimize_block_jit
+    from jaxgenus._optimize import optimize_block_compilations
 
     mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
     opts = jg.OptimizeOptions(learning_rate=0.05, renderer=soft_silhouette, views_per_step=2)
-    before = _optimize_block_jit._cache_size()
+    before = optimize_block_compilations()
     other = jg.Mesh.from_numpy(*_sphere(1, radius=0.8)[:2], capacity=(200, 384))  # same bucket, other mesh
     for m in (mesh, other, mesh):
         state = jg.init_optimizer_state(m, jax.random.key(1))
         for _ in range(2):
             state, rec = jg.optimize_block(state, cams, targets, n_steps=3, options=opts)
-    assert _optimize_block_jit._cache_size() == before + 1
+    assert optimize_block_compilations() == before + 1
     # the same key gives the same view samples, another key other ones
     s1, r1 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3, options=opts)
     s2, r2 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3, options=opts)

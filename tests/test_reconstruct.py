@@ -74,9 +74,9 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     iou = jg.metrics.volume_iou(rec.mesh, gt, n_samples=50_000)
     assert iou >= 0.8, iou
     h = rec.history
-    # one compiled block per rasterizer-plan bucket, one remesher for the one capacity bucket
-    assert 1 <= h["compilations"]["optimize_block"] <= h["render_plans"], h["compilations"]
-    assert h["compilations"]["remesh"] <= 1
+    # one compiled cycle (optimizer block + remesh) per rasterizer-plan bucket
+    assert 1 <= h["compilations"]["cycle"] <= h["render_plans"], h["compilations"]
+    assert h["compilations"]["all_cycles"] == 0
     assert sum(c["compilations"] for c in h["cycles"]) == sum(h["compilations"].values())
     assert h["start"] == "visual_hull"  # the torus' hull is one genus-1 component
     assert not h["fine"] and h["hull_thickness"] > 5.0 and rec.options == opts  # thick: no fine() switch
@@ -127,12 +127,12 @@ def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_is_too_high(
 
 
 def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
-    from jaxgenus._reconstruct import _tunnels
+    from jaxgenus._start import drill_tunnels
 
     sphere = jg.genus_primitive(0, n_faces=3000)
     v, f = sphere.to_numpy()
     size = 0.08
-    out = _tunnels(sphere, 3, size)
+    out = drill_tunnels(sphere, 3, size)
     assert out is not None and jg.is_closed_manifold(out)
     assert jg.genus(out) == 3 and jg.connected_components(out)[0] == 1
     vol = lambda m: trimesh.Trimesh(*m.to_numpy(), process=False).volume
@@ -140,8 +140,8 @@ def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
     # every new surface point lies within the torus' reach (1.3 size) of the sphere
     assert jg.metrics.hausdorff_distance(out, sphere) <= 1.3 * size + 1e-3
     np.testing.assert_array_equal(sphere.to_numpy()[0], v)  # input untouched
-    assert _tunnels(sphere, 1, 2.0) is None  # a ring larger than the object cannot make a handle
-    crowded = _tunnels(jg.genus_primitive(0, n_faces=200), 50, 0.5)  # overlapping cuts are refused
+    assert drill_tunnels(sphere, 1, 2.0) is None  # a ring larger than the object cannot make a handle
+    crowded = drill_tunnels(jg.genus_primitive(0, n_faces=200), 50, 0.5)  # overlapping cuts are refused
     assert crowded is None or (jg.genus(crowded) == 50 and jg.connected_components(crowded)[0] == 1)
 
 
@@ -195,17 +195,17 @@ def _torus(major, minor):
 
 def test_hull_thickness_matches_a_torus_tube_radius():
     """2 V / A of a torus is its tube radius: the hull's measure, in pixels, against it."""
-    from jaxgenus._hull import visual_hull_bounds
-    from jaxgenus._reconstruct import _hull_thickness, _pixel_footprint
+    from jaxgenus._frame import pixel_footprint
+    from jaxgenus._hull import hull_thickness, visual_hull_bounds
 
     cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
     for minor in (0.05, 0.25):
         alpha = jg.render_targets(_torus(0.7, minor), cams)[..., 3]
         lo, hi = visual_hull_bounds(alpha, cams)
-        pixel = _pixel_footprint(cams, 0.5 * (lo + hi))
-        got = _hull_thickness(alpha, cams, 64, pixel)
+        pixel = pixel_footprint(cams, 0.5 * (lo + hi))
+        got = hull_thickness(alpha, cams, 64, pixel)
         assert got == pytest.approx(minor / pixel, rel=0.3), (minor, got, minor / pixel)
-    assert _hull_thickness(np.zeros((16, 64, 64), np.float32), cams, 64, pixel) == np.inf  # empty: no hull
+    assert hull_thickness(np.zeros((16, 64, 64), np.float32), cams, 64, pixel) == np.inf  # empty: no hull
 
 
 def test_thin_shapes_switch_to_the_fine_preset():
@@ -228,8 +228,7 @@ def test_one_jit_runs_every_cycle_in_one_compiled_scan(torus_scene):
     rec = jg.reconstruct(img, cams, 1, options=opts, callback=lambda row, m: seen.append((row, jg.genus(m), int(m.n_faces))))
     h = rec.history
     assert rec.genus == 1 and rec.genus_ok
-    assert h["compilations"]["all_cycles"] <= 1 and h["compilations"]["optimize_block"] == 0
-    assert h["compilations"]["remesh"] == 0 and h["render_plans"] == 1
+    assert h["compilations"]["all_cycles"] <= 1 and h["compilations"]["cycle"] == 0 and h["render_plans"] == 1
     assert len(h["loss"]) == 300 and np.all(np.isfinite(h["loss"]))
     assert [r["cycle"] for r, _, _ in seen] == [0, 1, 2]
     assert [g for _, g, _ in seen] == [1, 1, 1]  # the per-cycle meshes come out of the scan

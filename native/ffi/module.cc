@@ -5,6 +5,8 @@
 #include <nanobind/stl/string.h>
 
 #include <stdexcept>
+#include <string>
+#include <type_traits>
 #include <vector>
 
 #include "ffi/handlers.h"
@@ -58,20 +60,68 @@ nb::ndarray<nb::numpy, T> ToNumpy1D(std::vector<T>&& data) {
   return nb::ndarray<nb::numpy, T>(owned->data(), 1, shape, own);
 }
 
-// Remeshes (V, F) outside jit: no capacity, at most face_budget faces. Returns
-// (vertices f64 (V', 3), faces i32 (F', 3), attributes f32 (V', k), info i32[9]).
+template <typename T>
+constexpr const char* DtypeName() {
+  static_assert(std::is_same_v<T, float> || std::is_same_v<T, int32_t>,
+                "remesh options are float or int32_t (add a dtype name here for another type)");
+  return std::is_same_v<T, float> ? "float32" : "int32";
+}
+
+// `_native.REMESH_PARAMS`: one (name, dtype, default, doc) row per option of
+// JAXGENUS_REMESH_PARAMS, in list order.
+nb::tuple RemeshParamsTable() {
+  const jaxgenus::RemeshParams defaults;
+  nb::list rows;
+  jaxgenus::for_each_remesh_param(defaults, [&](const char* name, const auto& field, const char* doc) {
+    using T = std::decay_t<decltype(field)>;
+    rows.append(nb::make_tuple(name, DtypeName<T>(), field, doc));
+  });
+  return nb::tuple(rows);
+}
+
+template <size_t N>
+nb::tuple NameTuple(const char* const (&names)[N]) {
+  nb::list out;
+  for (const char* n : names) out.append(nb::str(n));
+  return nb::tuple(out);
+}
+
+// Decodes the option dict of the numpy entry by the same field list as the FFI
+// handler: a missing option keeps its default, an unknown name or a value that
+// does not convert to the option's type raises ValueError.
+jaxgenus::RemeshParams ParamsFromDict(const nb::dict& options) {
+  jaxgenus::RemeshParams p;
+  size_t decoded = 0;
+  jaxgenus::for_each_remesh_param(p, [&](const char* name, auto& field, const char*) {
+    using T = std::decay_t<decltype(field)>;
+    if (!options.contains(name)) return;
+    if (!nb::try_cast<T>(options[name], field))
+      throw std::invalid_argument(std::string("remesh option '") + name + "' must be " + DtypeName<T>());
+    ++decoded;
+  });
+  if (decoded != options.size()) {
+    for (auto [key, value] : options) {
+      bool known = false;
+      jaxgenus::for_each_remesh_param(p, [&](const char* n, auto&, const char*) {
+        known |= nb::isinstance<nb::str>(key) && nb::cast<std::string>(key) == n;
+      });
+      if (!known) throw std::invalid_argument("unknown remesh option " + nb::cast<std::string>(nb::repr(key)));
+    }
+  }
+  return p;
+}
+
+// Remeshes (V, F) outside jit: no capacity, at most face_budget faces. `options`
+// maps option names (REMESH_PARAMS) to values. Returns (vertices f64 (V', 3),
+// faces i32 (F', 3), attributes f32 (V', k), info i32[REMESH_INFO_SIZE], message,
+// target_edge_length).
 nb::tuple RemeshNumpy(VerticesIn vertices, FacesIn faces, AttributesIn attributes,
-                      float target_edge_length, int32_t iterations, int32_t adaptive,
-                      float approx_error, float min_edge_length, float max_edge_length,
-                      float coarsen_factor, int32_t smoothing_steps, float smoothing_lambda,
-                      int32_t project, int32_t debug_validate, int64_t face_budget) {
+                      const nb::dict& options, int64_t face_budget) {
   if (vertices.shape(1) != 3) throw std::invalid_argument("vertices must have shape (V, 3)");
   if (faces.shape(1) != 3) throw std::invalid_argument("faces must have shape (F, 3)");
   if (attributes.shape(0) != vertices.shape(0))
     throw std::invalid_argument("attributes must have shape (V, k)");
-  const jaxgenus::RemeshParams p{target_edge_length, iterations, adaptive, approx_error,
-                                  min_edge_length, max_edge_length, coarsen_factor,
-                                  smoothing_steps, smoothing_lambda, project, debug_validate};
+  const jaxgenus::RemeshParams p = ParamsFromDict(options);
   const int64_t k = int64_t(attributes.shape(1));
   std::vector<double> v_out;
   std::vector<int32_t> f_out;
@@ -120,17 +170,19 @@ NB_MODULE(_native, m) {
     return table;
   });
   m.attr("REPORT_SIZE") = int(jaxgenus::kReportSize);
+  m.attr("REPORT_FIELDS") = NameTuple(jaxgenus::kReportFieldNames);
   m.def("mesh_check", &MeshCheckNumpy, nb::arg("faces"), nb::arg("n_vertices"), nb::arg("n_faces"),
         nb::arg("vertex_capacity"),
-        "Topology report (int32[REPORT_SIZE]) and per-face component labels of a capacity mesh.");
+        "Topology report (int32[REPORT_SIZE], entries named by REPORT_FIELDS) and per-face "
+        "component labels of a capacity mesh.");
   m.attr("REMESH_INFO_SIZE") = int(jaxgenus::kRemeshInfoSize);
+  m.attr("REMESH_INFO_FIELDS") = NameTuple(jaxgenus::remesh_info::kNames);
+  m.attr("REMESH_PARAMS") = RemeshParamsTable();
   m.def("remesh", &RemeshNumpy, nb::arg("vertices"), nb::arg("faces"), nb::arg("attributes"),
-        nb::arg("target_edge_length"), nb::arg("iterations"), nb::arg("adaptive"),
-        nb::arg("approx_error"), nb::arg("min_edge_length"), nb::arg("max_edge_length"),
-        nb::arg("coarsen_factor"), nb::arg("smoothing_steps"), nb::arg("smoothing_lambda"),
-        nb::arg("project"), nb::arg("debug_validate"), nb::arg("face_budget"),
-        "Remesh (V f64, F i32, attributes f32 (V, k)) outside jit; returns "
-        "(V, F, attributes, info int32[REMESH_INFO_SIZE], message, target_edge_length).");
+        nb::arg("options"), nb::arg("face_budget"),
+        "Remesh (V f64, F i32, attributes f32 (V, k)) outside jit with `options` a dict "
+        "{name: value} of REMESH_PARAMS (missing: default); returns (V, F, attributes, "
+        "info int32[REMESH_INFO_SIZE] named by REMESH_INFO_FIELDS, message, target_edge_length).");
   m.def("apply_halfedge_operations", &ApplyOperationsNumpy, nb::arg("vertices"), nb::arg("faces"),
         nb::arg("ops"),
         "Test hook: apply (kind, halfedge, param) rows of split/collapse/flip/smooth with validate() "

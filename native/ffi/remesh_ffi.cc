@@ -1,6 +1,11 @@
 // Thin XLA FFI adapter for kernels/remesh: capacity buffers in and out, status in `info`.
-#include <algorithm>
+//
+// Attributes: `options`, a dictionary decoded into RemeshParams by the field
+// list JAXGENUS_REMESH_PARAMS (kernels/remesh.h), and `max_faces`, the face
+// budget. The target edge length is a 0-d operand (it may be traced), so it is
+// not part of `options`.
 #include <string>
+#include <type_traits>
 
 #include "ffi/handlers.h"
 #include "kernels/remesh.h"
@@ -9,13 +14,40 @@ namespace ffi = xla::ffi;
 
 namespace {
 
+// Decodes the `options` dictionary into *p in one pass over the field list. A
+// missing option keeps its default; an unknown name, a wrong scalar type, or
+// the operand `target_edge_length` is an error naming the option.
+ffi::Error DecodeOptions(const ffi::Dictionary& options, jaxgenus::RemeshParams* p) {
+  std::string error;
+  size_t decoded = 0;
+  jaxgenus::for_each_remesh_param(*p, [&](const char* name, auto& field, const char*) {
+    using T = std::decay_t<decltype(field)>;
+    if (!error.empty() || !options.contains(name)) return;
+    ffi::ErrorOr<T> value = options.get<T>(name);
+    if (value.has_error()) {
+      error = std::string("remesh: option '") + name + "': " + value.error().message();
+      return;
+    }
+    field = *value;
+    ++decoded;
+  });
+  if (!error.empty()) return ffi::Error::InvalidArgument(error);
+  if (options.contains("target_edge_length"))
+    return ffi::Error::InvalidArgument("remesh: target_edge_length is an operand, not an option");
+  if (decoded != options.size()) {
+    for (std::string_view name : options) {
+      bool known = false;
+      jaxgenus::for_each_remesh_param(*p, [&](const char* n, auto&, const char*) { known |= name == n; });
+      if (!known) return ffi::Error::InvalidArgument("remesh: unknown option '" + std::string(name) + "'");
+    }
+  }
+  return ffi::Error::Success();
+}
+
 ffi::Error RemeshImpl(ffi::BufferR2<ffi::F32> vertices, ffi::BufferR2<ffi::S32> faces,
                       ffi::BufferR1<ffi::S32> counts, ffi::BufferR2<ffi::F32> attributes,
-                      ffi::BufferR0<ffi::F32> target_edge_length, int32_t iterations,
-                      int32_t adaptive, float approx_error, float min_edge_length,
-                      float max_edge_length, float coarsen_factor, int32_t smoothing_steps,
-                      float smoothing_lambda, int32_t project, int32_t debug_validate, int64_t max_faces,
-                      ffi::ResultBufferR2<ffi::F32> vertices_out,
+                      ffi::BufferR0<ffi::F32> target_edge_length, ffi::Dictionary options,
+                      int64_t max_faces, ffi::ResultBufferR2<ffi::F32> vertices_out,
                       ffi::ResultBufferR2<ffi::S32> faces_out,
                       ffi::ResultBufferR2<ffi::F32> attributes_out,
                       ffi::ResultBufferR1<ffi::S32> info) {
@@ -30,9 +62,9 @@ ffi::Error RemeshImpl(ffi::BufferR2<ffi::F32> vertices, ffi::BufferR2<ffi::S32> 
   if (info->element_count() != jaxgenus::kRemeshInfoSize)
     return ffi::Error::InvalidArgument("remesh: info must have " +
                                        std::to_string(jaxgenus::kRemeshInfoSize) + " entries");
-  const jaxgenus::RemeshParams p{*target_edge_length.typed_data(), iterations, adaptive, approx_error,
-                                  min_edge_length, max_edge_length, coarsen_factor,
-                                  smoothing_steps, smoothing_lambda, project, debug_validate};
+  jaxgenus::RemeshParams p;
+  if (ffi::Error e = DecodeOptions(options, &p); e.failure()) return e;
+  p.target_edge_length = *target_edge_length.typed_data();
   const int64_t k = ad[1];
   const jaxgenus::RemeshReport r = jaxgenus::remesh_buffers(
       vertices.typed_data(), vd[0], faces.typed_data(), fd[0], counts.typed_data()[0],
@@ -52,16 +84,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(JgRemesh, RemeshImpl,
                                   .Arg<ffi::BufferR1<ffi::S32>>()
                                   .Arg<ffi::BufferR2<ffi::F32>>()
                                   .Arg<ffi::BufferR0<ffi::F32>>()
-                                  .Attr<int32_t>("iterations")
-                                  .Attr<int32_t>("adaptive")
-                                  .Attr<float>("approx_error")
-                                  .Attr<float>("min_edge_length")
-                                  .Attr<float>("max_edge_length")
-                                  .Attr<float>("coarsen_factor")
-                                  .Attr<int32_t>("smoothing_steps")
-                                  .Attr<float>("smoothing_lambda")
-                                  .Attr<int32_t>("project")
-                                  .Attr<int32_t>("debug_validate")
+                                  .Attr<ffi::Dictionary>("options")
                                   .Attr<int64_t>("max_faces")
                                   .Ret<ffi::BufferR2<ffi::F32>>()
                                   .Ret<ffi::BufferR2<ffi::S32>>()

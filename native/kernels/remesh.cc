@@ -91,15 +91,17 @@ const char* remesh_status_name(Status s) {
 
 void write_remesh_info(const RemeshReport& r, int32_t* info) {
   auto clamp32 = [](int64_t x) { return int32_t(std::min<int64_t>(std::max<int64_t>(x, INT32_MIN), INT32_MAX)); };
-  info[0] = int32_t(r.status);
-  info[1] = r.n_vertices;
-  info[2] = r.n_faces;
-  info[3] = clamp32(r.faces_estimated);
-  info[4] = clamp32(r.chi_before);
-  info[5] = clamp32(r.chi_after);
-  info[6] = clamp32(r.splits);
-  info[7] = clamp32(r.collapses);
-  info[8] = clamp32(r.flips);
+  namespace ri = remesh_info;
+  info[ri::status] = int32_t(r.status);
+  info[ri::n_vertices] = r.n_vertices;
+  info[ri::n_faces] = r.n_faces;
+  info[ri::faces_estimated] = clamp32(r.faces_estimated);
+  info[ri::chi_before] = clamp32(r.chi_before);
+  info[ri::chi_after] = clamp32(r.chi_after);
+  info[ri::splits] = clamp32(r.splits);
+  info[ri::collapses] = clamp32(r.collapses);
+  info[ri::flips] = clamp32(r.flips);
+  static_assert(ri::kCount == 9, "write every field of JAXGENUS_REMESH_INFO_FIELDS above");
 }
 
 RemeshReport remesh_buffers(const float* V, int64_t vcap, const int32_t* F, int64_t fcap,

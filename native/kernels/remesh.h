@@ -4,6 +4,7 @@
 
 #include <cstdint>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 #include "kernels/status.h"
@@ -20,20 +21,41 @@ namespace jaxgenus {
 //   kTopologyChanged: the result failed validate(), chi or the component
 //     count (never expected); the output is the unchanged input
 
-// Lengths are absolute; a value <= 0 selects the documented default.
+// The remesh options, listed ONCE. Every other place derives from this list:
+// the RemeshParams struct below, the XLA FFI attribute decoder
+// (ffi/remesh_ffi.cc), the option dict of the numpy entry point and the
+// exported table `_native.REMESH_PARAMS` (ffi/module.cc), from which the
+// Python `RemeshOptions` builds its native options. Columns: C++ type (float or
+// int32_t; flags are int32_t 0/1), name, default, doc. Lengths are absolute; a
+// value <= 0 selects the documented default.
+#define JAXGENUS_REMESH_PARAMS(X)                                                                  \
+  X(float, target_edge_length, 0, "uniform target length h; <= 0: mean edge length of the input")   \
+  X(int32_t, iterations, 5, "split/collapse/flip/smooth rounds, in [0, 1000]")                      \
+  X(int32_t, adaptive, 0, "1: curvature-adaptive sizing")                                           \
+  X(float, approx_error, 0, "adaptive approximation error eps; <= 0: 0.05 h")                        \
+  X(float, min_edge_length, 0, "adaptive lower clamp of the sizing field; <= 0: 0.25 h")             \
+  X(float, max_edge_length, 0, "adaptive upper clamp of the sizing field; <= 0: 4 h")                \
+  X(float, coarsen_factor, 0, "V-cycle coarsening target factor; <= 0: 2 if adaptive else 1 (off)") \
+  X(int32_t, smoothing_steps, 1, "tangential smoothing steps per iteration, in [0, 100]")           \
+  X(float, smoothing_lambda, 1, "step size of tangential smoothing, in (0, 1]")                     \
+  X(int32_t, project, 1, "1: project onto the input surface after smoothing")                       \
+  X(int32_t, debug_validate, 0, "1: validate() after every operation (slow; tests/debugging)")
+
 struct RemeshParams {
-  float target_edge_length = 0;  // <= 0: mean edge length of the input (h)
-  int32_t iterations = 5;
-  int32_t adaptive = 0;          // 1: curvature-adaptive sizing
-  float approx_error = 0;        // adaptive eps; <= 0: 0.05 h
-  float min_edge_length = 0;     // adaptive clamp; <= 0: 0.25 h
-  float max_edge_length = 0;     // adaptive clamp; <= 0: 4 h
-  float coarsen_factor = 0;      // V-cycle coarsening target factor; <= 0: 2 if adaptive else 1 (off)
-  int32_t smoothing_steps = 1;   // tangential smoothing steps per iteration
-  float smoothing_lambda = 1;    // step size of tangential smoothing, in (0, 1]
-  int32_t project = 1;           // project onto the input surface after smoothing
-  int32_t debug_validate = 0;    // 1: validate() after every operation (slow; tests/debugging)
+#define JAXGENUS_PARAM_MEMBER(type, name, default_value, doc) type name = default_value;
+  JAXGENUS_REMESH_PARAMS(JAXGENUS_PARAM_MEMBER)
+#undef JAXGENUS_PARAM_MEMBER
 };
+
+// Calls f(name, field, doc) for every option, in list order (`p` may be const).
+// The adapters use it to decode and export options without restating them.
+template <typename Params, typename F>
+void for_each_remesh_param(Params& p, F&& f) {
+  static_assert(std::is_same_v<std::remove_const_t<Params>, RemeshParams>);
+#define JAXGENUS_PARAM_VISIT(type, name, default_value, doc) f(#name, p.name, doc);
+  JAXGENUS_REMESH_PARAMS(JAXGENUS_PARAM_VISIT)
+#undef JAXGENUS_PARAM_VISIT
+}
 
 struct RemeshReport {
   Status status = Status::kInvalidInput;
@@ -77,10 +99,36 @@ RemeshReport apply_operations(const double* V, int64_t nv, const int32_t* F, int
 
 const char* remesh_status_name(Status s);
 
-// The int32 summary both entry points return: status, n_vertices, n_faces,
-// faces_estimated (clamped to int32), chi_before, chi_after, splits,
-// collapses, flips (the last three clamped to int32).
-constexpr int kRemeshInfoSize = 9;
+// Layout of the int32 summary both entry points return (`info`), listed ONCE:
+// entry i is the i-th row. Exported as `_native.REMESH_INFO_FIELDS`, from which
+// the Python `RemeshInfo` is built. Columns: name, doc.
+#define JAXGENUS_REMESH_INFO_FIELDS(X)                                            \
+  X(status, "Status")                                                             \
+  X(n_vertices, "live vertices of the result")                                    \
+  X(n_faces, "live faces of the result")                                          \
+  X(faces_estimated, "faces the unconstrained sizing field asks for (clamped)")   \
+  X(chi_before, "Euler characteristic of the input")                              \
+  X(chi_after, "Euler characteristic of the result")                              \
+  X(splits, "edge splits applied (clamped to int32)")                             \
+  X(collapses, "edge collapses applied (clamped to int32)")                       \
+  X(flips, "edge flips applied (clamped to int32)")
+
+namespace remesh_info {
+enum Field : int {
+#define JAXGENUS_INFO_ENUMERATOR(name, doc) name,
+  JAXGENUS_REMESH_INFO_FIELDS(JAXGENUS_INFO_ENUMERATOR)
+#undef JAXGENUS_INFO_ENUMERATOR
+  kCount
+};
+inline constexpr const char* kNames[] = {
+#define JAXGENUS_INFO_NAME(name, doc) #name,
+    JAXGENUS_REMESH_INFO_FIELDS(JAXGENUS_INFO_NAME)
+#undef JAXGENUS_INFO_NAME
+};
+static_assert(sizeof(kNames) / sizeof(kNames[0]) == kCount);
+}  // namespace remesh_info
+
+constexpr int kRemeshInfoSize = remesh_info::kCount;
 void write_remesh_info(const RemeshReport& r, int32_t* info);
 
 }  // namespace jaxgenus
