@@ -69,7 +69,8 @@ def run(targets, cams, genus, gt, options, trace_samples):
     cd = jg.metrics.chamfer_distance((aligned, f), gt)
     iou = jg.metrics.volume_iou((aligned, f), gt)
     return dict(cd_l1=cd.l1, cd_l2=cd.l2_pytorch3d, iou=iou, genus=rec.genus, faces=int(rec.mesh.n_faces),
-                seconds=rec.history["seconds"], start=rec.history["start"], fine=rec.history["fine"], trace=trace)
+                seconds=rec.history["seconds"], start=rec.history["start"], fine=rec.history["fine"], trace=trace,
+                sil_iou_min=min(rec.history["silhouette_iou"]), ok=rec.history["ok"])
 
 
 def run_one(args):
@@ -139,10 +140,18 @@ def main():
             genus = r["true_genus"]
             rows.append(r)
             print(f"{spec:24s} {method:8s} genus {r['genus']:>2}/{genus:<2} CD {r['cd_l1']:.4f} "
-                  f"CD2 {r['cd_l2']:.2e} IoU {r['iou']:.3f} faces {r['faces']:>6} {r['seconds']:.0f}s", flush=True)
+                  f"CD2 {r['cd_l2']:.2e} IoU {r['iou']:.3f} faces {r['faces']:>6} {r['seconds']:.0f}s "
+                  f"verdict {'ok' if r.get('ok', True) else 'NOT OK'} (silhouette IoU min {r.get('sil_iou_min', float('nan')):.3f})",
+                  flush=True)
             (out / "reconstruction_benchmark.json").write_text(json.dumps(rows, default=float))  # partial results
 
     write_report(rows, args, out)
+
+
+def _verdict(r) -> str:
+    if "ok" not in r:
+        return ""  # rows from before the verdict existed
+    return f"{'ok' if r['ok'] else 'NOT OK'} ({r['sil_iou_min']:.3f})"
 
 
 def write_report(rows, args, out: Path):
@@ -156,13 +165,14 @@ def write_report(rows, args, out: Path):
             f"`ReconstructOptions.fine()`, 5 x {args.steps}; `fine (auto)`: chosen by `reconstruct` for a visual hull "
             f"thinner than `fine_below`), every run in a fresh process, `{cmd}`\n\n"
             "| shape | genus | method | settings | start | result genus | CD L1 | CD ours / baseline | CD L2 (PyTorch3D) "
-            "| IoU | faces | seconds |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+            "| IoU | faces | seconds | verdict (min view silhouette IoU) |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     base = {r["shape"]: r["cd_l1"] for r in rows if r["method"] == "nicolet"}
     ratio = lambda r: f"{r['cd_l1'] / base[r['shape']]:.2f}" if r["method"] == "ours" and r["shape"] in base else ""
     table = head + "".join(
         f"| {r['shape']} | {r['true_genus']} | {r['method']} | {r.get('settings', 'default')} | {r.get('start', '')} "
         f"| {r['genus']} | {r['cd_l1']:.4f} "
-        f"| {ratio(r)} | {r['cd_l2']:.2e} | {r['iou']:.3f} | {r['faces']} | {r['seconds']:.0f} |\n" for r in rows)
+        f"| {ratio(r)} | {r['cd_l2']:.2e} | {r['iou']:.3f} | {r['faces']} | {r['seconds']:.0f} | {_verdict(r)} |\n"
+        for r in rows)
     print(table)
     (out / "reconstruction_benchmark.md").write_text(table)
     (out / "reconstruction_benchmark.json").write_text(json.dumps(rows, default=float))

@@ -19,6 +19,9 @@ from jaxgenus._cameras import (
     sphere_cameras,
 )
 from jaxgenus._io import load_mesh, save_mesh
+from jaxgenus._images import LoadedImages, load_images
+from jaxgenus._camera_files import load_cameras
+from jaxgenus._pairing import pair_images
 from jaxgenus._topology import (
     MeshReport,
     component_genera,
@@ -67,6 +70,7 @@ __all__ = [
     "CycleRecord",
     "GradientTransformation",
     "History",
+    "LoadedImages",
     "LossWeights",
     "Mesh",
     "MeshReport",
@@ -105,12 +109,15 @@ __all__ = [
     "is_closed_manifold",
     "lambda_from_alpha",
     "largesteps_solve",
+    "load_cameras",
+    "load_images",
     "load_mesh",
     "look_at",
     "mesh_report",
     "metrics",
     "objective",
     "optimize_block",
+    "pair_images",
     "plan_render",
     "project",
     "reconstruct",

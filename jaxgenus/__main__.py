@@ -34,62 +34,49 @@ def _primitives(args) -> int:
     return 0
 
 
-def _progress(total_cycles):
+#: Exit codes of `jaxgenus reconstruct` and `jaxgenus demo` (documented in the README).
+EXIT_OK, EXIT_INPUT, EXIT_USAGE, EXIT_GENUS, EXIT_NOT_OK = 0, 1, 2, 3, 4
+
+
+class _InputError(Exception):
+    """Bad input: reported as one `error:` line, exit code EXIT_INPUT."""
+
+
+def _clock(t0):
+    def say(line):
+        print(f"[{time.perf_counter() - t0:6.1f}s] {line}", flush=True)
+
+    return say
+
+
+def _progress(total_cycles, say):
     def show(row, mesh):
         done = row["cycle"] + 1
         eta = row["elapsed"] / done * (total_cycles - done)
         bar = "#" * done + "." * (total_cycles - done)
-        print(
-            f"[{bar}] cycle {done}/{total_cycles}  loss {row['loss']:.4f}  faces {row['faces']}"
-            f"  chi {row['chi']}  {row['elapsed']:.0f}s elapsed, ETA {eta:.0f}s",
-            flush=True,
-        )
+        say(f"[{bar}] cycle {done}/{total_cycles}  loss {row['loss']:.4f}  faces {row['faces']}"
+            f"  chi {row['chi']}  {row['elapsed']:.0f}s elapsed, ETA {eta:.0f}s")
 
     return show
-
-
-def _load_cameras(path):
-    import json
-
-    import jaxgenus as jg
-
-    spec = json.loads(Path(path).read_text())
-    try:
-        cams = spec["cameras"]
-        K = np.array([c["K"] for c in cams], np.float32)
-        R = np.array([c["R"] for c in cams], np.float32)
-        t = np.array([c["t"] for c in cams], np.float32)
-        return jg.cameras_from_opencv(K, R, t, height=int(spec["height"]), width=int(spec["width"]))
-    except (KeyError, TypeError, ValueError) as err:
-        raise SystemExit(
-            f"--cameras: expected JSON {{height, width, cameras: [{{K, R, t}}, ...]}} (OpenCV convention): {err}"
-        )
-
-
-def _load_images(path):
-    p = Path(path)
-    if p.suffix == ".npy":
-        return np.load(p)
-    files = sorted(p.glob("*.png"))
-    if not files:
-        raise SystemExit(f"--images: {path} is neither a .npy file nor a folder of PNG files")
-    try:
-        from PIL import Image
-    except ImportError:
-        raise SystemExit("--images: reading PNG files needs Pillow (pip install pillow), or pass a .npy array")
-    return np.stack([np.asarray(Image.open(f).convert("RGBA"), np.float32) / 255.0 for f in files])
 
 
 def _report(rec, gt=None):
     import jaxgenus as jg
 
-    print(f"genus {rec.genus} (requested {rec.history['requested_genus']})  faces {int(rec.mesh.n_faces)}"
-          f"  time {rec.history['seconds']:.1f}s  start {rec.history['start']}"
-          + ("  (thin visual hull: fine() settings)" if rec.history["fine"] else ""))
+    h = rec.history
+    print(f"genus {rec.genus} (requested {h['requested_genus']})  faces {int(rec.mesh.n_faces)}"
+          f"  time {h['seconds']:.1f}s  start {h['start']}"
+          + ("  (thin visual hull: fine() settings)" if h["fine"] else ""))
+    iou = np.asarray(h["silhouette_iou"])
+    print(f"silhouette IoU per view: min {iou.min():.3f}  mean {iou.mean():.3f}  (start: mean "
+          f"{np.mean(h['start_silhouette_iou']):.3f})")
     if gt is not None:
         cd = jg.metrics.chamfer_distance(rec.mesh, gt, n_samples=30_000)
-        iou = jg.metrics.volume_iou(rec.mesh, gt, n_samples=100_000)
-        print(f"chamfer L1 {cd.l1:.5f}  chamfer L2 (PyTorch3D) {cd.l2_pytorch3d:.3e}  volume IoU {iou:.3f}")
+        viou = jg.metrics.volume_iou(rec.mesh, gt, n_samples=100_000)
+        print(f"chamfer L1 {cd.l1:.5f}  chamfer L2 (PyTorch3D) {cd.l2_pytorch3d:.3e}  volume IoU {viou:.3f}")
+    print(f"verdict: {'ok' if h['ok'] else 'NOT OK: the result does not match its images'}")
+    for w in h["warnings"]:
+        print(f"  - {w}")
 
 
 def _write(rec, out):
@@ -104,13 +91,47 @@ def _write(rec, out):
     print(f"wrote {out} and {out.with_suffix('.json')}")
 
 
-def _reconstruct(args) -> int:
+def _exit_code(rec) -> int:
+    if not rec.genus_ok:
+        return EXIT_GENUS
+    return EXIT_OK if rec.history["ok"] else EXIT_NOT_OK
+
+
+def _options(args):
     import jaxgenus as jg
 
     opts = jg.ReconstructOptions.nicolet() if args.nicolet else jg.ReconstructOptions()
     opts = opts.fine() if args.fine else opts
-    opts = dataclasses.replace(opts, n_cycles=args.cycles or opts.n_cycles, steps_per_cycle=args.steps, one_jit=args.one_jit)
-    gt = None
+    change = dict(steps_per_cycle=args.steps, one_jit=args.one_jit)
+    if args.cycles:
+        change["n_cycles"] = args.cycles
+    if args.max_faces:
+        change.update(max_faces=args.max_faces, initial_faces=min(opts.initial_faces, args.max_faces))
+    if args.edge_length:
+        change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
+    return dataclasses.replace(opts, **change)
+
+
+def _captured(args, say):
+    """Images and cameras from files, paired; prints what was read and how it was paired."""
+    import jaxgenus as jg
+
+    loaded = jg.load_images(args.images, masks=args.masks, background=args.background, targets=args.targets)
+    size = loaded.images.shape[1:3]
+    cams, cam_names = jg.load_cameras(args.cameras, image_size=tuple(int(x) for x in size))
+    order, how = jg.pair_images(loaded.names, cam_names, n_images=len(loaded.images), n_cameras=len(cams))
+    cams = cams[np.asarray(order)]
+    say(f"images: {loaded.source}; {len(loaded.images)} views of {size[1]}x{size[0]} px, targets {loaded.targets}")
+    say(f"cameras: {args.cameras}; {how}")
+    return loaded.images, cams, loaded.targets
+
+
+def _reconstruct(args) -> int:
+    import jaxgenus as jg
+
+    say = _clock(time.perf_counter())
+    opts = _options(args)
+    gt, targets = None, args.targets
     if args.mesh:
         gt = jg.load_mesh(args.mesh)
         v, f = gt.to_numpy()
@@ -118,15 +139,18 @@ def _reconstruct(args) -> int:
         gt = jg.Mesh.from_numpy(v / np.linalg.norm(v, axis=1).max(), f)
         cams = jg.sphere_cameras(args.views, radius=3.0, fov_deg=40.0, resolution=args.res)
         images = jg.render_targets(gt, cams)
+        say(f"targets: {args.views} normal maps of {args.mesh} at {args.res}px (synthetic)")
     elif args.images and args.cameras:
-        cams = _load_cameras(args.cameras)
-        images = _load_images(args.images)
+        images, cams, targets = _captured(args, say)
     else:
-        raise SystemExit("give --mesh GT.obj (synthetic targets) or --images DIR --cameras cams.json")
-    rec = jg.reconstruct(images, cams, args.genus, options=opts, callback=_progress(opts.n_cycles))
+        raise _InputError("give --mesh GT.obj (synthetic targets) or --images PATH --cameras FILE")
+    genus = None if args.genus == "auto" else int(args.genus)
+    say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
+        f"{opts.steps_per_cycle} steps, up to {opts.max_faces} faces")
+    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(opts.n_cycles, say), log=say)
     _report(rec, gt)
     _write(rec, args.out)
-    return 0 if rec.genus_ok else 2
+    return _exit_code(rec)
 
 
 def _demo(args) -> int:
@@ -140,10 +164,11 @@ def _demo(args) -> int:
     print(f"scene {args.scene!r} (genus {g}, {int(gt.n_faces)} faces): {args.views} target views at {args.res}px "
           f"rendered in {time.perf_counter() - t0:.1f}s")
     opts = jg.ReconstructOptions(n_cycles=args.cycles, steps_per_cycle=args.steps, one_jit=args.one_jit)
-    rec = jg.reconstruct(images, cams, g, options=opts, callback=_progress(opts.n_cycles))
+    say = _clock(time.perf_counter())
+    rec = jg.reconstruct(images, cams, g, options=opts, callback=_progress(opts.n_cycles, say), log=say)
     _report(rec, gt)
     _write(rec, Path(args.out) / f"{args.scene}.obj")
-    return 0 if rec.genus_ok else 2
+    return _exit_code(rec)
 
 
 def main(argv=None) -> int:
@@ -154,11 +179,21 @@ def main(argv=None) -> int:
     p.add_argument("--faces", type=int, default=5000)
     p.add_argument("--out", default="jaxgenus_out")
     p.set_defaults(run=_primitives)
-    r = sub.add_parser("reconstruct", help="reconstruct a mesh of a given genus from images")
+    r = sub.add_parser("reconstruct", help="reconstruct a mesh of a given genus from images",
+                       epilog="exit codes: 0 ok; 1 bad input; 2 usage; 3 the result's genus is not the "
+                              "requested one; 4 the result does not match its images (see the verdict)")
     r.add_argument("--mesh", help="ground-truth mesh: render synthetic targets from it")
-    r.add_argument("--images", help="RGBA images: a .npy (N, H, W, 4) array or a folder of PNG files")
-    r.add_argument("--cameras", help="cameras JSON {height, width, cameras: [{K, R, t}]} (OpenCV convention)")
-    r.add_argument("--genus", type=int, required=True)
+    r.add_argument("--images", help="images: a folder, glob or .npy: RGBA PNGs (alpha = mask), mask PNGs, "
+                   "or photos with --masks / --background")
+    r.add_argument("--masks", help="folder of mask images paired with the photos by file name")
+    r.add_argument("--background", choices=["black", "white"], help="threshold masks off a uniform background")
+    r.add_argument("--targets", choices=["silhouette", "normals", "photo"],
+                   help="what RGB images hold (default: inferred; photos are fitted by their masks for now)")
+    r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "
+                   "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
+    r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")
+    r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
+    r.add_argument("--edge-length", type=float, default=None, help="final target edge length in pixels (default 1.4)")
     r.add_argument("--views", type=int, default=24)
     r.add_argument("--res", type=int, default=128)
     r.add_argument("--cycles", type=int, default=None, help="optimize/remesh cycles (default 4; 5 with --fine)")
@@ -179,7 +214,14 @@ def main(argv=None) -> int:
     d.add_argument("--out", default="jaxgenus_out")
     d.set_defaults(run=_demo)
     args = parser.parse_args(argv)
-    return args.run(args)
+    if args.command == "reconstruct" and args.genus != "auto" and not str(args.genus).isdigit():
+        parser.error(f"--genus must be an int >= 0 or 'auto', got {args.genus!r}")
+    try:
+        return args.run(args)
+    except (_InputError, ValueError, FileNotFoundError) as err:
+        msg = " ".join(str(err).split())
+        print(f"error: {msg}", file=sys.stderr)
+        return EXIT_INPUT
 
 
 if __name__ == "__main__":

@@ -18,9 +18,9 @@ never hidden: the iteration stops at `max_iter` and returns the (finite) iterate
 together with its true relative residual.
 
 It replaced a hand-written PCG with the same stopping rule: same iterations
-and residuals, 10-30% faster per solve (docs/stability.md,
-`benchmarks/solve.py`). Three lineax settings make it match (measured,
-float32, see docs/stability.md):
+and residuals, 0.62-1.01 of its time per solve (about 15% faster typically)
+but 1-3 s more compile time (docs/stability.md, `benchmarks/solve.py`).
+Three lineax settings make it match (measured, float32):
 
 * `rtol=0, atol=rtol * ||b_c||, norm=` the 2-norm: lineax's default test is
   elementwise (`|r_i| <= atol + rtol |b_i|` in the max norm), which a row with
@@ -31,7 +31,7 @@ float32, see docs/stability.md):
   start it ran into `max_iter` (2000 iterations instead of 40).
 * the Jacobi preconditioner is scaled so its smallest entry is
   `max(1, 1000 eps n)`: lineax declares a breakdown (and returns NaN) when
-  `p.Ap <= 200 eps n (r.Mr)`; with the plain `1 / (1 + lambda deg)` that
+  `p.Ap <= 200 eps n (r.M^-1 r)`; with the plain `1 / (1 + lambda deg)` that
   ratio is as small as `1 / (1 + lambda deg_max)` for smooth directions, which
   tripped it at lambda 1000 (and lambda 19 on one coupled 3V system). A constant
   factor leaves the CG iterates unchanged, and with `A >= I` it keeps

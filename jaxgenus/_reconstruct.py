@@ -39,7 +39,7 @@ from jaxgenus._mesh import Mesh
 from jaxgenus._optimize import init_optimizer_state
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions
-from jaxgenus._start import estimate_genus, start_mesh
+from jaxgenus._start import HullTable, estimate_genus, start_mesh
 from jaxgenus._targets import check_targets
 from jaxgenus._verdict import judge
 from jaxgenus._topology import genus as mesh_genus, is_closed_manifold
@@ -132,9 +132,9 @@ def reconstruct(
         f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}")
     lo, hi = visual_hull_bounds(tg.alpha, cams)
     pixel = pixel_footprint(cams, 0.5 * (lo + hi))
-    estimate = None
+    estimate, hulls = None, HullTable(tg.alpha, cams)
     if genus is None:
-        estimate = estimate_genus(tg.alpha, cams, options.hull_resolutions)
+        estimate = estimate_genus(hulls, options.hull_resolutions)
         genus = estimate["genus"]
         say(f"genus: estimated {genus} from the visual hull "
             f"({', '.join(str(e['genus']) for e in estimate['evidence'])} on grids {options.hull_resolutions} x closing 0, 1)")
@@ -147,7 +147,7 @@ def reconstruct(
             say(f"thin structure: the visual hull is {thickness:.2f} px thick (< {options.fine_below}): fine() settings")
     lengths = options.edge_lengths() if options.remesh else []
     first = lengths[0] if lengths else options.final_edge_length
-    start = start_mesh(tg.alpha, cams, genus, (lo, hi), first * pixel, options)
+    start = start_mesh(hulls, genus, (lo, hi), first * pixel, options)
     say(f"start: {start.kind} of genus {genus}, {int(start.mesh.n_faces)} faces"
         + (f", {start.tunnels} handles drilled (the silhouettes show fewer)" if start.tunnels else "")
         + f" ({time.perf_counter() - t0:.1f}s)")

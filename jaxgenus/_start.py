@@ -23,7 +23,7 @@ from jaxgenus._primitives import genus_primitive
 from jaxgenus._remesh import RemeshOptions, remesh
 from jaxgenus._topology import connected_components, euler_characteristic, genus as mesh_genus
 
-__all__ = ["Start", "drill_tunnels", "estimate_genus", "start_mesh"]
+__all__ = ["HullTable", "Start", "drill_tunnels", "estimate_genus", "start_mesh"]
 
 
 class Start(NamedTuple):
@@ -42,7 +42,26 @@ class Start(NamedTuple):
     tunnels: int
 
 
-def estimate_genus(alpha, cams: Cameras, resolutions: tuple[int, ...]) -> dict:
+class HullTable:
+    """The largest component of the visual hull and its genus per `(resolution, closing)`, built on
+    first use. One table serves one run (the genus estimate and the start share its hulls)."""
+
+    def __init__(self, alpha, cams: Cameras):
+        self._alpha, self._cams, self._built = alpha, cams, {}
+
+    def get(self, resolution: int, closing: int) -> tuple[Mesh | None, int]:
+        """`(hull, genus)`, or `(None, -1)` when there is no hull at that grid."""
+        key = (resolution, closing)
+        if key not in self._built:
+            try:
+                hull = largest_component(visual_hull(self._alpha, self._cams, resolution=resolution, closing=closing))
+                self._built[key] = (hull, mesh_genus(hull))
+            except ValueError:
+                self._built[key] = (None, -1)
+        return self._built[key]
+
+
+def estimate_genus(hulls: HullTable, resolutions: tuple[int, ...]) -> dict:
     """The object's genus as the silhouettes show it: `{"genus": g, "evidence": [...]}`.
 
     The genus of the largest component of the visual hull on each grid of
@@ -52,14 +71,7 @@ def estimate_genus(alpha, cams: Cameras, resolutions: tuple[int, ...]) -> dict:
     estimate is a lower bound of the object's genus. `evidence` lists
     `{"resolution", "closing", "genus"}` for every hull (genus -1: no hull).
     """
-    evidence = []
-    for closing in (0, 1):
-        for res in resolutions:
-            try:
-                g = mesh_genus(largest_component(visual_hull(alpha, cams, resolution=res, closing=closing)))
-            except ValueError:
-                g = -1
-            evidence.append({"resolution": res, "closing": closing, "genus": g})
+    evidence = [{"resolution": r, "closing": c, "genus": hulls.get(r, c)[1]} for c in (0, 1) for r in resolutions]
     found = [e["genus"] for e in evidence if e["genus"] >= 0]
     if not found:
         raise ValueError("images: no visual hull could be built from the silhouettes to estimate the genus")
@@ -67,19 +79,18 @@ def estimate_genus(alpha, cams: Cameras, resolutions: tuple[int, ...]) -> dict:
     return {"genus": int(values[np.argmax(counts)]), "evidence": evidence}
 
 
-def start_mesh(alpha, cams: Cameras, genus: int, bounds, edge_length: float, options: ReconstructOptions) -> Start:
+def start_mesh(hulls: HullTable, genus: int, bounds, edge_length: float, options: ReconstructOptions) -> Start:
     """The start of a run (see the module doc).
 
     Args:
-        alpha: `(N, H, W)` silhouettes.
-        cams: their cameras.
+        hulls: the run's `HullTable` (its silhouettes and cameras).
         genus: the requested genus.
         bounds: `(lo, hi)` of the visual hull (world units).
         edge_length: target edge length of the hull start (world units).
         options: `ReconstructOptions` (`start`, `hull_resolutions`, `max_faces`, `initial_faces`).
     """
     if options.start == "auto":
-        mesh, grid, tunnels = _hull_start(alpha, cams, genus, edge_length, options)
+        mesh, grid, tunnels = _hull_start(hulls, genus, edge_length, options)
         if mesh is not None:
             return Start(mesh, "visual_hull+tunnels" if tunnels else "visual_hull", grid, tunnels)
     lo, hi = bounds
@@ -153,7 +164,7 @@ def drill_tunnels(hull: Mesh, count: int, size: float) -> Mesh | None:
     return Mesh.from_numpy(np.asarray(out.vert_properties, np.float32)[:, :3], np.asarray(out.tri_verts, np.int32))
 
 
-def _hull_start(alpha, cams: Cameras, genus: int, target: float, options: ReconstructOptions):
+def _hull_start(hulls: HullTable, genus: int, target: float, options: ReconstructOptions):
     """The visual hull as a start mesh, with the requested genus.
 
     Tries the grid sizes `options.hull_resolutions` with a grey-level closing of
@@ -176,10 +187,8 @@ def _hull_start(alpha, cams: Cameras, genus: int, target: float, options: Recons
     for closing in (0, 1, 2):
         highest = -1
         for res in options.hull_resolutions:
-            try:
-                hull = largest_component(visual_hull(alpha, cams, resolution=res, closing=closing))
-                g = mesh_genus(hull)
-            except ValueError:
+            hull, g = hulls.get(res, closing)
+            if hull is None:
                 continue
             highest = max(highest, g)
             if g < genus:

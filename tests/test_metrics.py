@@ -170,6 +170,41 @@ def test_icp_aligns_a_different_tessellation():
     assert after < 1.05 * gap < 0.1 * before
 
 
+def test_icp_unconstrained_rotation_and_jax_state():
+    """A sphere does not constrain rotations: the fit stays finite and rigid, the
+    translation is recovered, and the float64 solve leaves jax's x64 flag as it was."""
+    import jax
+
+    flag = jax.config.jax_enable_x64
+    target = _sphere(1.0, 3)
+    t0 = _rigid([0, 0, 1], 0.1, [0.03, -0.02, 0.01])
+    v = np.asarray(target.vertices)
+    r = metrics.icp_align((v @ t0[:3, :3].T + t0[:3, 3], target.faces), target, n_samples=1000)
+    assert np.all(np.isfinite(r.transform)) and r.residual < 1e-3
+    rot = r.transform[:3, :3]
+    np.testing.assert_allclose(rot.T @ rot, np.eye(3), atol=1e-12)
+    centre = r.transform[:3, :3] @ t0[:3, 3] + r.transform[:3, 3]  # where the moved centre lands
+    np.testing.assert_allclose(centre, 0.0, atol=1e-3)
+    assert jax.config.jax_enable_x64 == flag
+    assert jnp.zeros(1).dtype == (jnp.float64 if flag else jnp.float32)
+
+
+def test_icp_plane_moves_only_along_its_normal():
+    """On a flat grid, in-plane rotation and translation are exactly unconstrained:
+    the minimum-norm fit leaves them at 0 and recovers the offset along the normal."""
+    g = np.linspace(-1.0, 1.0, 21)
+    x, y = np.meshgrid(g, g)
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    i = np.arange(v.shape[0]).reshape(21, 21)
+    a, b, c, d = i[:-1, :-1].ravel(), i[:-1, 1:].ravel(), i[1:, 1:].ravel(), i[1:, :-1].ravel()
+    f = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    t0 = _rigid([0, 0, 1], 0.05, [0.0, 0.0, 0.1])
+    r = metrics.icp_align((v @ t0[:3, :3].T + t0[:3, 3], f), (v, f), n_samples=500)
+    expected = np.eye(4)
+    expected[2, 3] = -0.1
+    np.testing.assert_allclose(r.transform, expected, atol=1e-9)
+
+
 def test_icp_initial_and_rigidity():
     target = _blob()
     t0 = _rigid([0, 1, 1], 0.1, [0.02, 0.0, -0.04])

@@ -183,6 +183,38 @@ def test_largesteps_nonconvergence_is_reported():
     assert not bool(info.converged)
 
 
+@pytest.mark.parametrize("lam", [19.0, 1e3])
+def test_largesteps_solve_float32_warm_starts_and_columns(lam):
+    """lineax CG per column in float32 on a padded mesh: no false breakdown (NaN) at stiff
+    lambda, a good warm start converges (the true residual's float32 floor is above rtol),
+    a bad one is dropped, and a NaN column stops only that column."""
+    v, f, _ = _sphere(3)
+    n, vcap = len(v), len(v) + 40
+    faces = jnp.asarray(np.vstack([f, np.zeros((30, 3), int)]), jnp.int32)
+    lap = jg.uniform_laplacian(faces, vcap)
+    rng = np.random.default_rng(1)
+    x_true = np.zeros((vcap, 3), np.float32)
+    x_true[:n] = v
+    x_true[n:] = rng.normal(size=(vcap - n, 3))
+    b = jg.to_differential(lap, jnp.asarray(x_true), lam)
+    solve = jax.jit(lambda b, x0: jg.largesteps_solve(lap, b, lam, x0))
+    x, cold = solve(b, jnp.zeros_like(b))
+    assert bool(cold.converged) and 0 < int(cold.iterations) < 200 and float(cold.residual) < 1e-3
+    np.testing.assert_allclose(np.asarray(x), x_true, atol=1e-4)
+    near = jnp.asarray(x_true + 1e-3 * rng.normal(size=x_true.shape).astype(np.float32))
+    _, warm = solve(b, near)
+    assert bool(warm.converged) and int(warm.iterations) < 200
+    _, bad = solve(b, jnp.asarray(100.0 * rng.normal(size=x_true.shape), jnp.float32))
+    assert bool(bad.converged) and int(bad.iterations) == int(cold.iterations)
+    xn, info = solve(b.at[5, 2].set(jnp.nan), jnp.zeros_like(b))
+    assert not bool(info.converged)
+    np.testing.assert_allclose(np.asarray(xn)[:, :2], np.asarray(x)[:, :2], atol=1e-6)
+    # lambda = 0 is the identity
+    x0, info0 = jg.largesteps_solve(lap, b, 0.0)
+    assert bool(info0.converged) and int(info0.iterations) <= 1
+    np.testing.assert_allclose(np.asarray(x0), np.asarray(b), rtol=1e-6)
+
+
 def test_differential_roundtrip_gradient_and_alpha_form():
     v, f, _ = _sphere(1)
     n = len(v)
