@@ -126,9 +126,20 @@ def _captured(args, say):
     return loaded.images, cams, loaded.targets
 
 
+def _check_outputs(args):
+    """Refuse an --out whose mesh or JSON history would overwrite an input file."""
+    out = Path(args.out)
+    inputs = [Path(p) for p in (args.mesh, args.images, args.masks, args.cameras) if p]
+    for target in (out, out.with_suffix(".json")):
+        for src in inputs:
+            if src.exists() and target.exists() and target.resolve() == src.resolve():
+                raise _InputError(f"--out {args.out}: writing {target} would overwrite the input {src}")
+
+
 def _reconstruct(args) -> int:
     import jaxgenus as jg
 
+    _check_outputs(args)
     say = _clock(time.perf_counter())
     opts = _options(args)
     gt, targets = None, args.targets

@@ -136,8 +136,9 @@ def reconstruct(
     if genus is None:
         estimate = estimate_genus(hulls, options.hull_resolutions)
         genus = estimate["genus"]
-        say(f"genus: estimated {genus} from the visual hull "
-            f"({', '.join(str(e['genus']) for e in estimate['evidence'])} on grids {options.hull_resolutions} x closing 0, 1)")
+        say(f"genus: estimated {genus} from the visual hull, {estimate['agreement']:.0%} of the hulls agree "
+            f"({', '.join(str(e['genus']) for e in estimate['evidence'])} on grids {options.hull_resolutions} x closing 0, 1)"
+            + ("; low agreement: give the genus if you know it" if estimate["agreement"] < 0.5 else ""))
     genus = int(genus)
     thickness, fine = None, False
     if options.fine_below > 0:

@@ -67,16 +67,19 @@ def estimate_genus(hulls: HullTable, resolutions: tuple[int, ...]) -> dict:
     The genus of the largest component of the visual hull on each grid of
     `resolutions`, without and with a one-cell closing (which fills the thin
     spurious tunnels carving can leave); the estimate is the most frequent value
-    (ties: the lower genus). Holes that no silhouette shows are not counted: the
-    estimate is a lower bound of the object's genus. `evidence` lists
-    `{"resolution", "closing", "genus"}` for every hull (genus -1: no hull).
+    (ties: the lower genus); `agreement` is the fraction of hulls that have it
+    (the skull at 24 views of 128^2: 13, 9, 18 without closing and 6, 2, 7 with,
+    so 2 at agreement 1/6; shapes whose holes all show: 1). Holes that no
+    silhouette shows are not counted. `evidence` lists `{"resolution", "closing",
+    "genus"}` for every hull (genus -1: no hull).
     """
     evidence = [{"resolution": r, "closing": c, "genus": hulls.get(r, c)[1]} for c in (0, 1) for r in resolutions]
     found = [e["genus"] for e in evidence if e["genus"] >= 0]
     if not found:
         raise ValueError("images: no visual hull could be built from the silhouettes to estimate the genus")
     values, counts = np.unique(found, return_counts=True)
-    return {"genus": int(values[np.argmax(counts)]), "evidence": evidence}
+    best = int(np.argmax(counts))
+    return {"genus": int(values[best]), "agreement": float(counts[best] / len(found)), "evidence": evidence}
 
 
 def start_mesh(hulls: HullTable, genus: int, bounds, edge_length: float, options: ReconstructOptions) -> Start:

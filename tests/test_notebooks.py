@@ -20,6 +20,7 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
     for cell in cells:
         if cell["cell_type"] == "code":
             exec(compile("".join(cell["source"]), f"{path.name}", "exec"), namespace)
-    assert (tmp_path / "quickstart_result.obj").is_file()
-    assert namespace["ours"].genus == namespace["genus"]
-    assert namespace["base"].genus == 0
+    if path.name == "01_quickstart.ipynb":
+        assert (tmp_path / "quickstart_result.obj").is_file()
+        assert namespace["ours"].genus == namespace["genus"]
+        assert namespace["base"].genus == 0
