@@ -64,7 +64,8 @@ def _report(rec, gt=None):
     import jaxgenus as jg
 
     h = rec.history
-    print(f"genus {rec.genus} (requested {h['requested_genus']})  faces {int(rec.mesh.n_faces)}"
+    asked = "estimated" if h["genus_estimate"] is not None else "requested"
+    print(f"genus {rec.genus} ({asked} {h['requested_genus']})  faces {int(rec.mesh.n_faces)}"
           f"  time {h['seconds']:.1f}s  start {h['start']}"
           + ("  (thin visual hull: fine() settings)" if h["fine"] else ""))
     iou = np.asarray(h["silhouette_iou"])
@@ -116,7 +117,8 @@ def _captured(args, say):
     """Images and cameras from files, paired; prints what was read and how it was paired."""
     import jaxgenus as jg
 
-    loaded = jg.load_images(args.images, masks=args.masks, background=args.background, targets=args.targets)
+    loaded = jg.load_images(args.images, masks=args.masks, background=args.background, targets=args.targets,
+                            background_threshold=args.threshold)
     size = loaded.images.shape[1:3]
     cams, cam_names = jg.load_cameras(args.cameras, image_size=tuple(int(x) for x in size))
     order, how = jg.pair_images(loaded.names, cam_names, n_images=len(loaded.images), n_cameras=len(cams))
@@ -194,10 +196,12 @@ def main(argv=None) -> int:
                        epilog="exit codes: 0 ok; 1 bad input; 2 usage; 3 the result's genus is not the "
                               "requested one; 4 the result does not match its images (see the verdict)")
     r.add_argument("--mesh", help="ground-truth mesh: render synthetic targets from it")
-    r.add_argument("--images", help="images: a folder, glob or .npy: RGBA PNGs (alpha = mask), mask PNGs, "
-                   "or photos with --masks / --background")
+    r.add_argument("--images", help="images: a folder, a quoted glob ('dir/*.png') or a .npy: RGBA PNGs "
+                   "(alpha = mask), mask PNGs, or photos with --masks / --background")
     r.add_argument("--masks", help="folder of mask images paired with the photos by file name")
     r.add_argument("--background", choices=["black", "white"], help="threshold masks off a uniform background")
+    r.add_argument("--threshold", type=float, default=0.1, help="with --background: a pixel is the object when its "
+                   "largest channel differs from the background by more than this (default 0.1); check the masks")
     r.add_argument("--targets", choices=["silhouette", "normals", "photo"],
                    help="what RGB images hold (default: inferred; photos are fitted by their masks for now)")
     r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "

@@ -62,7 +62,8 @@ def carved_points(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.nda
         hit[ok] = alpha[i, v[ok], u[ok]] >= 0.5
         inside &= hit
     if not inside.any():
-        raise ValueError("images: the silhouettes are inconsistent with cams (their visual hull is empty)")
+        raise ValueError("images: the silhouettes are inconsistent with cams (their visual hull is empty): are the "
+                         "images paired with the right cameras, and do the intrinsics match the images' size?")
     return grid[inside], 2.0 * radius / (resolution - 1)
 
 

@@ -291,7 +291,8 @@ def infer_targets(images) -> str:
     return _infer(arr)[0]
 
 
-def load_images(path, *, masks=None, background: str | None = None, targets: str | None = None) -> LoadedImages:
+def load_images(path, *, masks=None, background: str | None = None, targets: str | None = None,
+                background_threshold: float = BACKGROUND_THRESHOLD) -> LoadedImages:
     """Read target images the way users have them.
 
     Args:
@@ -318,7 +319,7 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
             single-channel as above, RGB (luminance), RGBA (as `LA`) or a palette of colours (a label
             map: every non-black pixel is foreground). They replace any alpha the photos have.
         background: `"black"` or `"white"`: a hard mask where the largest channel distance to that colour
-            exceeds `BACKGROUND_THRESHOLD` = 0.1 (about 26 / 255: above JPEG and sensor noise, so the
+            exceeds `background_threshold` (default `BACKGROUND_THRESHOLD` = 0.1, about 26 / 255: above JPEG and sensor noise, so the
             object must differ from the background by more than that in some channel); no cleanup.
         targets: `"silhouette"`, `"normals"` or `"photo"`, checked against what was read (normals and
             photos need RGB); None infers it (`infer_targets`). `"silhouette"` keeps only the mask:
@@ -328,6 +329,8 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         `LoadedImages(images, names, targets, source)`; nothing passed in is modified or aliased.
         Raises `ValueError` with a one-line message naming the argument or the file.
     """
+    if not (isinstance(background_threshold, (int, float)) and 0.0 < background_threshold < 1.0):
+        raise ValueError(f"background_threshold must be in (0, 1), got {background_threshold!r}")
     if targets is not None and targets not in TARGETS:
         raise ValueError(f"targets must be one of {', '.join(repr(t) for t in TARGETS)} or None, got {targets!r}")
     if background is not None and background not in ("black", "white"):
@@ -373,8 +376,8 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         elif background is not None:
             if has_alpha:
                 raise ValueError(f"background: the images ({first}) have alpha masks already; background is for photos without one")
-            m = (np.abs(rgb - (0.0 if background == "black" else 1.0)).max(-1) > BACKGROUND_THRESHOLD).astype(np.float32)
-            source += f", masks where max |RGB - {background}| > {BACKGROUND_THRESHOLD}"
+            m = (np.abs(rgb - (0.0 if background == "black" else 1.0)).max(-1) > background_threshold).astype(np.float32)
+            source += f", masks where max |RGB - {background}| > {background_threshold}"
         elif has_alpha:
             odd = next((p for p, a in zip(pics, alphas) if a is None), None)
             if odd is not None:

@@ -77,6 +77,14 @@ def _check_arguments(genus, options, cams):
         raise ValueError(f"options.views_per_step ({options.views_per_step}) exceeds the {len(cams)} views")
 
 
+def _estimate_warnings(estimate) -> list[str]:
+    if estimate is None or estimate["agreement"] >= 0.5:
+        return []
+    found = [e["genus"] for e in estimate["evidence"]]
+    return [f"the genus {estimate['genus']} was estimated at a low agreement ({estimate['agreement']:.0%} of the "
+            f"visual hulls: {found}): give the genus if you know it"]
+
+
 def _result_genus(mesh: Mesh) -> int:
     try:
         return mesh_genus(mesh) if is_closed_manifold(mesh) else -1
@@ -103,8 +111,10 @@ def reconstruct(
             `(n + 1) / 2` (what `render_targets` produces) or a photo.
         cams: a `Cameras` with N views of the images' size, in any units and placement.
         genus: the object's genus (int >= 0), or None to estimate it from the
-            silhouettes' visual hull (`history["genus_estimate"]`; a lower bound:
-            holes no silhouette shows are not counted).
+            silhouettes' visual hull (`history["genus_estimate"]`, with the agreement
+            of its grids). Holes no silhouette shows are missed and carving can add
+            spurious handles (a genus-0 dinosaur's 12-view hull has genus 3-9):
+            give the genus when you know it.
         targets: what RGBA images hold: `"normals"`, `"photo"` (fitted by their masks
             only, for now) or `"silhouette"` (use A only); None infers it.
         options: `ReconstructOptions` (`ReconstructOptions.nicolet()` for the baseline).
@@ -188,7 +198,7 @@ def reconstruct(
         start_silhouette_iou=verdict.start_silhouette_iou,
         normal_error_deg=verdict.normal_error_deg,
         ok=verdict.ok,
-        warnings=verdict.warnings,
+        warnings=verdict.warnings + _estimate_warnings(estimate),
     )
     mesh = frame.mesh_to_world(state.mesh)
     return Reconstruction(mesh=mesh, genus=g, genus_ok=(g == expected), history=history, options=options)
