@@ -35,6 +35,7 @@ import numpy as np
 import trimesh
 
 import jaxgenus as jg
+from _problem import stretched_fit
 import jaxgenus._optimize as optimize_module  # only to swap the solver for the step measurement
 
 
@@ -138,12 +139,7 @@ def solve_rows(name, mesh, lam, rounds, reps):
 
 
 def step_rows(name, mesh, args):
-    cams = jg.sphere_cameras(args.views, radius=3.0, fov_deg=40.0, resolution=args.resolution)
-    v, f = mesh.to_numpy()
-    target = jg.Mesh.from_numpy(v * np.array([1.2, 0.8, 0.9]), f, capacity=(mesh.vertex_capacity, mesh.face_capacity))
-    images = jg.render(target, cams, channels=("alpha", "normal"))
-    targets = jnp.concatenate([(images[..., 1:] + 1.0) / 2.0, images[..., :1]], axis=-1)
-    plan = jg.plan_render(mesh, cams, face_margin=1.5)
+    cams, targets, plan = stretched_fit(mesh, args.views, args.resolution)
     settings = [
         ("optimizer only", jg.LossWeights(alpha=0.0, normal=0.0, bilaplacian=1e-3)),
         ("full step", jg.LossWeights()),

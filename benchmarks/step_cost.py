@@ -24,6 +24,7 @@ import scipy.sparse.linalg as spl
 import trimesh
 
 import jaxgenus as jg
+from _problem import stretched_fit
 
 
 def best_of(fn, repeats):
@@ -78,12 +79,7 @@ def solver_table(mesh, repeats):
 
 
 def step_table(mesh, args):
-    cams = jg.sphere_cameras(args.views, radius=3.0, fov_deg=40.0, resolution=args.resolution)
-    v, f = mesh.to_numpy()
-    tmesh = jg.Mesh.from_numpy(v * np.array([1.2, 0.8, 0.9]), f, capacity=(mesh.vertex_capacity, mesh.face_capacity))
-    images = jg.render(tmesh, cams, channels=("alpha", "normal"))
-    targets = jnp.concatenate([(images[..., 1:] + 1.0) / 2.0, images[..., :1]], axis=-1)
-    plan = jg.plan_render(mesh, cams, face_margin=1.5)
+    cams, targets, plan = stretched_fit(mesh, args.views, args.resolution)
     rows = []
     settings = [
         ("full step (render alpha+normal)", jg.LossWeights()),

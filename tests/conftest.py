@@ -1,7 +1,23 @@
+import gc
 import os
 from pathlib import Path
 
+import jax
 import pytest
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fresh_executables_per_module():
+    """Drop jax's compiled executables after each test module.
+
+    XLA CPU keeps every executable it compiles, each with its own JIT-code memory
+    mappings; one process running the whole suite (hundreds of shapes, plans and
+    buckets) otherwise runs out of them and crashes inside the compiler
+    (docs/reconstruction.md). Tests count compilations only within a test.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()
 
 
 def shared_meshes_dir() -> Path | None:
