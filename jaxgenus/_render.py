@@ -20,7 +20,7 @@ from jaxtyping import Array, Int
 from jaxgenus._cameras import Cameras
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import face_normals
-from jaxgenus._splat import CUTOFF_LOG, SplatConfig, Tier, splat
+from jaxgenus._splat import CUTOFF_LOG, DC, SplatConfig, Tier, splat
 
 __all__ = ["render", "RenderInfo", "RasterPlan", "plan_render", "CHANNEL_SIZES"]
 
@@ -75,6 +75,7 @@ class _Faces(NamedTuple):
     plane: Array  # (N, F, 3)
     qrange: Array  # (N, F, 2)
     attr: Array  # (N, F, A)
+    logw: Array  # (N, F) log of the smooth facing weight (0 without culling)
     valid: Array  # (N, F)
     origin: Array  # (N, F, 2) int32
     extent: Array  # (N, F) int32, larger side of the clipped blurred bbox
@@ -84,6 +85,27 @@ class _Faces(NamedTuple):
 def blur_radius(sigma: float) -> float:
     """Distance in pixels beyond which a face's coverage is exactly 0 (D < 1e-4)."""
     return sigma * CUTOFF_LOG
+
+
+#: Width of the smooth back-face cull in facing cosine: a face's coverage and blend
+#: weight are scaled by w = sigmoid(cos / FACING_WIDTH) tapered to reach 0 where
+#: sigmoid = 1e-4 (cos = -0.28), cos the cosine between its normal and the
+#: direction to the camera.
+FACING_WIDTH = 0.03
+
+
+def _facing_log_weight(tri):
+    """log sigmoid(cos / FACING_WIDTH) per view and face; `tri (N, F, 3, 3)` in camera space."""
+    ncam = jnp.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
+    to_cam = -jnp.mean(tri, axis=2)
+    num = jnp.sum(ncam * to_cam, axis=-1)
+    den2 = jnp.sum(ncam * ncam, axis=-1) * jnp.sum(to_cam * to_cam, axis=-1)
+    ok = den2 > jnp.finfo(tri.dtype).tiny
+    cos = jnp.where(ok, num * jax.lax.rsqrt(jnp.where(ok, den2, 1.0)), 0.0)
+    # tapered like the coverage: exactly 0 (log -inf, face dropped) at the cutoff
+    w = jnp.minimum((jax.nn.sigmoid(cos / FACING_WIDTH) - DC) / (1.0 - 2.0 * DC), 1.0)  # w(c) + w(-c) = 1
+    live = w > 0
+    return jnp.where(live, jnp.log(jnp.where(live, w, 1.0)), -jnp.inf)
 
 
 def _check_scalar(name, value):
@@ -120,9 +142,12 @@ def _face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> 
     uv = tri[..., :2] / zs[..., None] * focal[:, None, None, :] + pp[:, None, None, :]
 
     valid = mesh.face_mask[None, :] & front_ok
+    in_front = valid  # depth normalization: every face in front of the camera (continuous)
     if cull:
-        ncam = jnp.cross(tri[:, :, 1] - tri[:, :, 0], tri[:, :, 2] - tri[:, :, 0])
-        valid = valid & (jnp.sum(ncam * tri[:, :, 0], axis=-1) < 0)
+        logw = _facing_log_weight(tri)
+        valid = valid & (logw > -jnp.inf)
+    else:
+        logw = jnp.zeros(valid.shape, dtype)
 
     # window: pixel centres within the blur radius of the face's bbox, clipped to the image
     r = blur_radius(sigma)
@@ -138,9 +163,9 @@ def _face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> 
     extent = jnp.max(jax.lax.stop_gradient(span), axis=-1).astype(jnp.int32)
 
     # normalized inverse depth q in [0, 1] over this view's visible vertices
-    zmin = jnp.min(jnp.where(valid[..., None], z, jnp.inf), axis=(1, 2))
-    zmax = jnp.max(jnp.where(valid[..., None], z, -jnp.inf), axis=(1, 2))
-    anyv = jnp.any(valid, axis=1)
+    zmin = jnp.min(jnp.where(in_front[..., None], z, jnp.inf), axis=(1, 2))
+    zmax = jnp.max(jnp.where(in_front[..., None], z, -jnp.inf), axis=(1, 2))
+    anyv = jnp.any(in_front, axis=1)
     zmin = jnp.where(anyv, zmin, 1.0)
     zmax = jnp.where(anyv, zmax, 1.0)
     scale = jnp.maximum(1.0 / zmin - 1.0 / zmax, 1e-6 / zmin)
@@ -178,7 +203,8 @@ def _face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> 
                 parts.append((ambient + (1.0 - ambient) * lam)[..., None])
     attr = jnp.concatenate(parts, axis=-1) if parts else jnp.zeros((n_views, n_faces, 0), dtype)
     dconst = jnp.stack([scale, offset], axis=-1)
-    return _Faces(uv, plane, qrange, attr, valid, origin, extent, dconst)
+    logw = jnp.where(valid, logw, 0.0)
+    return _Faces(uv, plane, qrange, attr, logw, valid, origin, extent, dconst)
 
 
 @functools.partial(jax.jit, static_argnames=("sigma", "znear", "cull"))
@@ -301,7 +327,10 @@ def render(
         background: dict `{"normal": (3,), "depth": float, "shaded": float}` of
             blend background values (default 0); alpha's background is 0.
         znear: faces with a vertex at camera depth <= znear (world units) are skipped.
-        cull_backfaces: skip faces turned away from the camera (closed meshes).
+        cull_backfaces: fade out faces turned away from the camera (closed meshes):
+            coverage and blend weight scale by `sigmoid(cos / FACING_WIDTH)`, so the
+            image stays continuous in the vertices as a face turns at the contour
+            (a hard cut there breaks the silhouette gradient). False: all faces.
         plan: a `RasterPlan` (windows, face budgets). If None it is chosen from the
             geometry when the inputs are concrete, else a generic plan is used;
             inside `jit` pass `plan_render(...)` computed outside.
@@ -381,14 +410,14 @@ def _render_jit(mesh, cameras, plan, *, channels, sigma, gamma, znear, cull, lig
         tiers.append(
             Tier(
                 _gather(fs.v, idx), _gather(fs.plane, idx), _gather(fs.qrange, idx),
-                _gather(fs.attr, idx), slot, _gather(fs.origin, idx),
+                _gather(fs.attr, idx), _gather(fs.logw, idx), slot, _gather(fs.origin, idx),
             )
         )
         windows.append(b)
     background_blend = sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ())
     cfg = SplatConfig(
         height=cameras.height, width=cameras.width, windows=tuple(windows), sigma=sigma, gamma=gamma,
-        want_cov="alpha" in channels, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
+        want_cov=True, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
         background=background_blend,
     )
     cov, blend = splat(cfg, tuple(tiers), fs.dconst)
@@ -397,12 +426,17 @@ def _render_jit(mesh, cameras, plan, *, channels, sigma, gamma, znear, cull, lig
     for c in attrs + (("depth",) if want_depth else ()):
         offsets[c] = o
         o += CHANNEL_SIZES[c]
+    # blend channels are composited over their background with the coverage, so a
+    # face's faint outer tail (which wins the depth softmax against the background)
+    # fades in with its coverage instead of switching the pixel at the blur cutoff
+    alpha = jnp.minimum(cov, 1.0)[..., None]
     out = []
     for c in channels:
         if c == "alpha":
-            out.append(jnp.minimum(cov, 1.0)[..., None])
+            out.append(alpha)
         else:
-            out.append(blend[..., offsets[c] : offsets[c] + CHANNEL_SIZES[c]])
+            val = blend[..., offsets[c] : offsets[c] + CHANNEL_SIZES[c]]
+            out.append(alpha * val + (1.0 - alpha) * jnp.asarray(bg[c], val.dtype))
     images = jnp.concatenate(out, axis=-1)
     if return_info:
         info = RenderInfo(jnp.sum(fs.valid, axis=1).astype(jnp.int32), truncated, dropped)

@@ -23,6 +23,8 @@ Per tier and view, every face slot carries
   function of the pixel position, `q = gx * u + gy * v + c`,
 * `qrange (K, 2)`: `(lo, hi)`, the clamp of `q` (vertex min / max),
 * `attr (K, A)`: face-constant blend attributes (normals, shading),
+* `logw (K,)`: log of a face weight (the smooth facing cull): the face covers
+  `w_j D_j` and enters the blend with score `log w_j + log D_j + q / gamma`,
 * `valid (K,)` and `origin (K, 2)` (int, window corner `(col, row)`).
 
 Per view, `dconst = (scale, offset)` turns `q` into inverse depth,
@@ -43,6 +45,7 @@ import jax.numpy as jnp
 
 # D_j < 1e-4 is treated as exactly 0: d > sigma * ln(1e4) outside the face.
 CUTOFF_LOG = math.log(1e4)
+DC = 1.0 / (1.0 + 1e4)  # sigmoid(-CUTOFF_LOG): the coverage taper subtracts it
 
 
 class SplatConfig(NamedTuple):
@@ -59,6 +62,17 @@ class SplatConfig(NamedTuple):
     background: tuple[float, ...]  # blend background, n_attr + want_depth values
 
     @property
+    def sharpness(self) -> float:
+        """Exponent p of the coverage in the blend weight `(w D)^p exp(q / gamma)`.
+
+        With p = 1 a face's faint outer tail (D ~ 1e-4) in front of another surface
+        wins the depth softmax by `exp(dq / gamma)` up to the blur cutoff, where the
+        pixel then switches surfaces at once. With `p * ln(1e4) >= 1.5 / gamma` the
+        tail hands over smoothly inside the cutoff for any depth gap (q is in [0, 1]).
+        """
+        return max(1.0, 1.5 / (self.gamma * CUTOFF_LOG))
+
+    @property
     def n_blend(self) -> int:
         return self.n_attr + int(self.want_depth)
 
@@ -72,6 +86,7 @@ class Tier(NamedTuple):
     plane: jax.Array
     qrange: jax.Array
     attr: jax.Array
+    logw: jax.Array
     valid: jax.Array
     origin: jax.Array
 
@@ -156,10 +171,24 @@ def _window_get(cfg: SplatConfig, canvas, origin, b: int):
 
 
 def _log_terms(p: _Pairs):
-    """`log D` and `D = sigmoid(x)` from one exp and one log1p (stable for any x)."""
-    logd = -(jnp.maximum(-p.x, 0.0) + jnp.log1p(p.ea))
-    d = jnp.where(p.x >= 0, 1.0, p.ea) / (1.0 + p.ea)
-    return logd, d
+    """The tapered coverage `T = clip((D - DC) / (1 - 2 DC), 0, 1)` of each pair,
+    `D = sigmoid(x)`: exactly 0 at the blur cutoff (`D = DC`), so a face's coverage
+    and blend weight fade in continuously as its tail reaches a pixel, and still
+    `T(x) + T(-x) = 1` (neighbours sum to 1 along a shared edge). Returns
+    `(log T, T, dT/dx, dlogT/dx, ok)`, `ok = T > 0`; stable for any x."""
+    inv = 1.0 / (1.0 + p.ea)
+    pos = p.x >= 0
+    omd = jnp.where(pos, p.ea, 1.0) * inv  # 1 - D
+    dm = jnp.where(pos, (1.0 - DC) - omd, p.ea * inv - DC)  # D - DC without cancellation inside
+    ok = dm > 0
+    free = ok & (dm < 1.0 - 2.0 * DC)
+    slope = p.ea * inv * inv  # D (1 - D)
+    dm = jnp.clip(dm, 0.0, 1.0 - 2.0 * DC)
+    t = dm / (1.0 - 2.0 * DC)
+    logt = jnp.log(jnp.where(ok, dm, 1.0)) - math.log1p(-2.0 * DC)
+    dt = jnp.where(free, slope / (1.0 - 2.0 * DC), 0.0)
+    dlog = jnp.where(free, slope / jnp.where(ok, dm, 1.0), 0.0)
+    return logt, t, dt, dlog, ok
 
 
 def _depth(q, dconst):
@@ -207,12 +236,13 @@ def _forward_view(cfg: SplatConfig, tiers, dconst):
     mcanvas = jnp.full((size,), _neg(dtype), dtype)
     scores = []
     for t, p in zip(tiers, pairs):
-        logd, dval = _log_terms(p)
+        logd, dval, _, _, ok = _log_terms(p)
+        live = p.live & ok
         if cfg.want_cov:
-            upd = _materialize(jnp.where(p.live, dval, 0.0), t.origin[0, 0])
+            upd = _materialize(jnp.where(live, dval * jnp.exp(t.logw)[:, None], 0.0), t.origin[0, 0])
             cov = cov.at[p.idx].add(upd, mode="promise_in_bounds")
         if cfg.n_blend:
-            s = jnp.where(p.live, logd + p.q / cfg.gamma, _neg(dtype))
+            s = jnp.where(live, cfg.sharpness * (logd + t.logw[:, None]) + p.q / cfg.gamma, _neg(dtype))
             s = _materialize(s, t.origin[0, 0])
             scores.append(s)
             mcanvas = mcanvas.at[p.idx].max(s, mode="promise_in_bounds")
@@ -263,17 +293,21 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_cov, g_blend):
         dist = jnp.sqrt(dxn * dxn + dyn * dyn)
         p = p._replace(x=jnp.where(inside, dist, -dist) / cfg.sigma)
         p = p._replace(ea=jnp.exp(-jnp.abs(p.x)))
-        logd, dval = _log_terms(p)
-        gx = gp[0] * dval * (1.0 - dval) if cfg.want_cov else jnp.zeros_like(p.x)
+        logd, dval, dslope, dlog, ok = _log_terms(p)
+        live = live & ok
+        w = jnp.exp(t.logw)[:, None]
+        gw = jnp.where(live, gp[0] * w * dval, 0.0) if cfg.want_cov else jnp.zeros_like(p.x)  # d/d(log w)
+        gx = gp[0] * w * dslope if cfg.want_cov else jnp.zeros_like(p.x)
         gq = jnp.zeros_like(p.x)
         pj = None
         if cfg.n_blend:
-            s = logd + p.q / cfg.gamma
+            s = cfg.sharpness * (logd + t.logw[:, None]) + p.q / cfg.gamma
             pj = jnp.where(live, jnp.exp(s - gp[1]), 0.0)
             gb = gp[3:]
             vals = _blend_values(cfg, t, p, dconst)
             gscore = pj * (sum(g * v for g, v in zip(gb, vals)) - gp[2])
-            gx = gx + gscore * (1.0 - dval)
+            gx = gx + cfg.sharpness * gscore * dlog
+            gw = gw + cfg.sharpness * jnp.where(live, gscore, 0.0)
             gq = gscore / cfg.gamma
             if cfg.want_depth:
                 gz = -pj * gb[-1] * vals[-1] * vals[-1]  # d(out)/d(1/z) of this pair
@@ -283,7 +317,7 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_cov, g_blend):
         gq = jnp.where(live, gq, 0.0)
         # x = +-sqrt(d^2) / sigma; gd2 carries the -2 of d(d^2)/d(vertex) below
         gd2 = jnp.where(dist > 0, -jnp.where(inside, gx, -gx) / (cfg.sigma * jnp.where(dist > 0, dist, 1.0)), 0.0)
-        gd2, gq, pj = _materialize((gd2, gq, pj), tok)
+        gd2, gq, pj, gw = _materialize((gd2, gq, pj, gw), tok)
         # envelope theorem: only the nearest edge moves d^2; with t its (clamped)
         # parameter, d(d^2)/d(start) = -2 (1 - t) dvec and d(d^2)/d(end) = -2 t dvec
         edge = jnp.where(inside, code - 3, code)
@@ -298,14 +332,14 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_cov, g_blend):
         ghi = jnp.where(~free & (p.qraw > lo), gq, 0.0)
         c0, c1, c2 = c
         # one reduction per field (XLA CPU turns a stacked reduction into a slow concatenate)
-        fields = [c0 * dxn, c0 * dyn, c1 * dxn, c1 * dyn, c2 * dxn, c2 * dyn, gqf, gqf * p.px, gqf * p.py, glo, ghi]
+        fields = [c0 * dxn, c0 * dyn, c1 * dxn, c1 * dyn, c2 * dxn, c2 * dyn, gqf, gqf * p.px, gqf * p.py, glo, ghi, gw]
         if cfg.n_attr:
             fields += [pj * gp[3 + i] for i in range(cfg.n_attr)]
         red = jnp.stack([jnp.sum(f, axis=1) for f in fields], -1)
         gv = red[:, :6].reshape(k, 3, 2)
         gplane = jnp.stack([red[:, 7], red[:, 8], red[:, 6]], -1)
-        gattr = red[:, 11:] if cfg.n_attr else jnp.zeros((k, 0), dtype)
-        grads.append(Tier(gv, gplane, red[:, 9:11], gattr, None, None))
+        gattr = red[:, 12:] if cfg.n_attr else jnp.zeros((k, 0), dtype)
+        grads.append(Tier(gv, gplane, red[:, 9:11], gattr, red[:, 11], None, None))
     return tuple(grads), gdc
 
 

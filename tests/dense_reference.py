@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 
 CUT = math.log(1e4)
+FACING = 0.03  # docs/rendering.md: facing-weight width in cosine
 
 
 def _seg_d2(px, py, ax, ay, bx, by):
@@ -57,14 +58,21 @@ def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True
         zs = jnp.where(z > znear, z, 1.0)
         u = tri[..., 0] / zs * cameras.focal[n, 0] + cameras.principal_point[n, 0]
         v = tri[..., 1] / zs * cameras.focal[n, 1] + cameras.principal_point[n, 1]
-        valid = mesh.face_mask & jnp.all(z > znear, -1)
-        if cull:
+        infront = mesh.face_mask & jnp.all(z > znear, -1)
+        valid = infront
+        logw = jnp.zeros(z.shape[0], dt)
+        if cull:  # smooth facing weight sigmoid(cos / FACING) of normal vs direction to the camera
             nc = jnp.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-            valid = valid & (jnp.sum(nc * tri[:, 0], -1) < 0)
-        zv = z
-        zmin = jnp.min(jnp.where(valid[:, None], zv, jnp.inf))
-        zmax = jnp.max(jnp.where(valid[:, None], zv, -jnp.inf))
-        anyv = jnp.any(valid)
+            cen = tri.mean(axis=1)
+            nn = jnp.linalg.norm(nc, axis=-1) * jnp.linalg.norm(cen, axis=-1)
+            cos = -jnp.sum(nc * cen, -1) / jnp.where(nn > 0, nn, 1.0)
+            dc = 1.0 / (1.0 + 1e4)
+            wt = jnp.minimum((jax.nn.sigmoid(cos / FACING) - dc) / (1.0 - 2 * dc), 1.0)  # tapered like the coverage
+            valid = valid & (wt > 0)
+            logw = jnp.log(jnp.where(valid, wt, 1.0))
+        zmin = jnp.min(jnp.where(infront[:, None], z, jnp.inf))
+        zmax = jnp.max(jnp.where(infront[:, None], z, -jnp.inf))
+        anyv = jnp.any(infront)
         zmin = jnp.where(anyv, zmin, 1.0)
         zmax = jnp.where(anyv, zmax, 1.0)
         scale = jnp.maximum(1 / zmin - 1 / zmax, 1e-6 / zmin)
@@ -91,13 +99,20 @@ def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True
         dist = jnp.where(pos, jnp.sqrt(jnp.where(pos, d2, 1.0)), 0.0)
         x = jnp.where(inside, dist, -dist) / sigma
         live = valid & (inside | (dist <= sigma * CUT))
-        cover = jnp.where(live, jax.nn.sigmoid(x), 0.0)
+        # tapered coverage: sigmoid minus its value at the cutoff, rescaled (0 at the cutoff)
+        dc = 1.0 / (1.0 + 1e4)
+        taper = jnp.minimum((jax.nn.sigmoid(x) - dc) / (1.0 - 2 * dc), 1.0)
+        live = live & (taper > 0)
+        taper = jnp.where(live, taper, 1.0)
+        cover = jnp.where(live, jnp.exp(logw) * taper, 0.0)
+        alpha = jnp.minimum(jnp.sum(cover, -1), 1.0)[..., None]
+        p = max(1.0, 1.5 / (gamma * CUT))  # coverage exponent of the blend weight
         res = []
         for c in channels:
             if c == "alpha":
-                res.append(jnp.minimum(jnp.sum(cover, -1), 1.0)[..., None])
+                res.append(alpha)
                 continue
-            score = jnp.where(live, -jax.nn.softplus(-x) + qp / gamma, -jnp.inf)
+            score = jnp.where(live, p * (logw + jnp.log(taper)) + qp / gamma, -jnp.inf)
             sb = jnp.full((h, w, 1), -1.0 / gamma, dt)
             allsc = jnp.concatenate([score, sb], -1)
             m = jax.lax.stop_gradient(jnp.max(allsc, -1, keepdims=True))
@@ -114,6 +129,7 @@ def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True
                 val = zp[..., None]
             bgv = jnp.broadcast_to(bgs[c], (h, w, 1, val.shape[-1]))
             vals = jnp.concatenate([val, bgv], axis=2)
-            res.append(jnp.einsum("hwf,hwfc->hwc", wts, vals))
+            blended = jnp.einsum("hwf,hwfc->hwc", wts, vals)
+            res.append(alpha * blended + (1 - alpha) * bgs[c])  # composited over the background
         outs.append(jnp.concatenate(res, -1))
     return jnp.stack(outs)
