@@ -84,7 +84,8 @@ def required_pairs(mesh, cams, sigma: float) -> int:
     return int(total)
 
 
-def run_cell(n_faces: int, n_views: int, res: int, channels: tuple[str, ...], iters: int, sigma: float) -> dict:
+def run_cell(n_faces: int, n_views: int, res: int, channels: tuple[str, ...], iters: int, sigma: float,
+             mode: str = "default") -> dict:
     import resource
 
     import jax
@@ -95,7 +96,8 @@ def run_cell(n_faces: int, n_views: int, res: int, channels: tuple[str, ...], it
     v, f = torus(n_faces)
     mesh = jg.Mesh.from_numpy(v, f, capacity=jg.capacity_bucket(len(f))[1])
     cams = jg.sphere_cameras(n_views, radius=4.5, fov_deg=40.0, resolution=res)
-    plan = jg.plan_render(mesh, cams, sigma=sigma)
+    # "default": what a user writes, render() under jit with no plan; "plan": a plan from the geometry
+    plan = jg.plan_render(mesh, cams, sigma=sigma) if mode == "plan" else None
     target = jnp.zeros((n_views, res, res, sum(jg.CHANNEL_SIZES[c] for c in channels)), jnp.float32)
 
     def loss(verts):
@@ -115,12 +117,12 @@ def run_cell(n_faces: int, n_views: int, res: int, channels: tuple[str, ...], it
         (val, overflow), g = compiled(mesh.vertices)
         g.block_until_ready()
         best = min(best, time.perf_counter() - t)
-    pairs = plan.pairs_per_view() * n_views
+    pairs = plan.pairs_per_view() * n_views if plan is not None else required_pairs(mesh, cams, sigma)
     return {
         "faces": len(f),
         "views": n_views,
         "res": res,
-        "window": f"{plan.window}" + (f"+{plan.big_window}" if plan.max_big_faces else ""),
+        "window": (f"{plan.window}" + (f"+{plan.big_window}" if plan.max_big_faces else "")) if plan else "none",
         "ms": best * 1e3,
         "pairs": pairs,
         "required": required_pairs(mesh, cams, sigma),
@@ -141,6 +143,8 @@ def main(argv=None):
     ap.add_argument("--channels", default="alpha,normal", help="comma-separated channels")
     ap.add_argument("--sigma", type=float, default=0.1)
     ap.add_argument("--iters", type=int, default=5)
+    ap.add_argument("--mode", default="default", choices=["default", "plan"],
+                    help="default: render() with no plan under jit (what a user writes); plan: plan_render() first")
     ap.add_argument("--out", help="also write the markdown table here")
     ap.add_argument("--_cell", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -148,7 +152,7 @@ def main(argv=None):
 
     if args._cell:
         nf, nv, res = (int(x) for x in args._cell.split("x"))
-        print(json.dumps(run_cell(nf, nv, res, channels, args.iters, args.sigma)))
+        print(json.dumps(run_cell(nf, nv, res, channels, args.iters, args.sigma, args.mode)))
         return
 
     if args.cells:
@@ -162,15 +166,17 @@ def main(argv=None):
     load = os.getloadavg()[0]
     header = (
         f"f32 matmul: {gflops:.0f} GFLOP/s; load average at start {load:.1f}; channels {','.join(channels)}; "
-        f"sigma {args.sigma}; torus meshes; limit = required pairs x {FLOP_PER_PAIR} flop / matmul rate\n\n"
-        "| faces | views | res | window | fwd+bwd ms | pairs (M) | ns/pair | required (M) | limit ms | x limit "
-        "| peak RSS GB | compile s | overflow |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|"
+        f"sigma {args.sigma}; mode {args.mode}; torus meshes; limit = required pairs x {FLOP_PER_PAIR} flop / "
+        "matmul rate; 'ms @127' = fwd+bwd ms x (matmul rate / 127 GFLOP/s), the time normalized to the reference "
+        "machine of the issue's targets; pairs = evaluated (plan) or required (no plan)\n\n"
+        "| faces | views | res | window | fwd+bwd ms | ms @127 | pairs (M) | ns/pair | required (M) | limit ms | x limit "
+        "| peak RSS GB | compile s | overflow |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"
     )
     print(header, flush=True)
     lines = [header]
     for nf, nv, res in cells:
         cmd = [sys.executable, __file__, "--_cell", f"{nf}x{nv}x{res}", "--channels", args.channels,
-               "--iters", str(args.iters), "--sigma", str(args.sigma)]
+               "--iters", str(args.iters), "--sigma", str(args.sigma), "--mode", args.mode]
         out = subprocess.run(cmd, capture_output=True, text=True)
         if out.returncode != 0:
             line = f"| {nf} | {nv} | {res} | failed: {out.stderr.strip().splitlines()[-1][:80]} |"
@@ -178,7 +184,8 @@ def main(argv=None):
             r = json.loads(out.stdout.strip().splitlines()[-1])
             limit_ms = r["required"] * FLOP_PER_PAIR / (gflops * 1e9) * 1e3
             line = (
-                f"| {r['faces']} | {nv} | {res} | {r['window']} | {r['ms']:.0f} | {r['pairs'] / 1e6:.2f} | "
+                f"| {r['faces']} | {nv} | {res} | {r['window']} | {r['ms']:.0f} | {r['ms'] * gflops / 127:.0f} | "
+                f"{r['pairs'] / 1e6:.2f} | "
                 f"{r['ms'] * 1e6 / r['pairs']:.0f} | {r['required'] / 1e6:.2f} | {limit_ms:.1f} | "
                 f"{r['ms'] / limit_ms:.0f} | {r['rss_gb']:.2f} | {r['compile_s']:.1f} | {r['overflow']} |"
             )

@@ -35,7 +35,8 @@ from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, re
 from jaxgenus._primitives import genus_primitive
 from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
-from jaxgenus._render import CHANNEL_SIZES, RasterPlan, RenderInfo, plan_render, render
+from jaxgenus._plan import RasterPlan, plan_render, static_plan
+from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
 from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
 from jaxgenus._largesteps import (
@@ -119,6 +120,7 @@ __all__ = [
     "optimize_block",
     "pair_images",
     "plan_render",
+    "static_plan",
     "project",
     "reconstruct",
     "remesh",

@@ -110,6 +110,10 @@ def _options(args):
         change.update(max_faces=args.max_faces, initial_faces=min(opts.initial_faces, args.max_faces))
     if args.edge_length:
         change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
+    if args.coarse_resolution is not None:
+        change["coarse_resolution"] = args.coarse_resolution
+    if args.crop is not None:
+        change["crop"] = args.crop
     return dataclasses.replace(opts, **change)
 
 
@@ -208,6 +212,12 @@ def main(argv=None) -> int:
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
+    r.add_argument("--coarse-resolution", type=int, default=None,
+                   help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "
+                        "full size throughout)")
+    r.add_argument("--crop", type=int, default=None,
+                   help="large images: the native-resolution cycles render random crops of this size (default 128; "
+                        "0: whole views)")
     r.add_argument("--edge-length", type=float, default=None, help="final target edge length in pixels (default 1.4)")
     r.add_argument("--views", type=int, default=24)
     r.add_argument("--res", type=int, default=128)

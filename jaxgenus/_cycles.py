@@ -7,11 +7,15 @@ the XLA FFI, carrying the Adam moments (the rest shape of the inversion penalty
 becomes the new shape). Host clock readings after the optimizer and after the
 remesh time the two parts in both drivers.
 
-* `run_per_cycle`: one jit-compiled `cycle` per cycle, driven from Python, with
-  the rasterizer re-planned from the geometry every cycle (plans are rounded to
-  buckets so nearby meshes share one compiled cycle).
-* `run_one_jit`: every cycle in one compiled `lax.scan` of the same `cycle`,
-  with one plan sized for the final face count (`ReconstructOptions.one_jit`).
+* `run_per_cycle`: one jit-compiled `cycle` per cycle, driven from Python; each
+  cycle fits its own pyramid level (`levels`).
+* `run_one_jit`: every cycle in one compiled `lax.scan` of the same `cycle`
+  (`ReconstructOptions.one_jit`).
+
+On CPU the renderer's native kernel needs no plan. Elsewhere the JAX splat is
+re-planned from the geometry every cycle (plans rounded to buckets so nearby
+meshes share one compiled cycle), or, in one jit, planned once for the final
+face count.
 
 Both return the final state, one step record and one `CycleRecord` per cycle,
 and the set of plans used.
@@ -33,7 +37,8 @@ from jaxgenus._history import CycleRecord
 from jaxgenus._optimize import OptimizeOptions, OptimizerState, optimize_steps
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions, RemeshStatus, remesh_in_jit
-from jaxgenus._render import RasterPlan, plan_render, render
+from jaxgenus._plan import RasterPlan, plan_render
+from jaxgenus._render import render
 from jaxgenus._topology import euler_characteristic
 
 __all__ = ["CycleOutput", "cycle", "cycle_compilations", "run_one_jit", "run_per_cycle"]
@@ -110,8 +115,18 @@ def _plan_bucket(plan: RasterPlan) -> RasterPlan:
     return RasterPlan(window=plan.window, max_faces=up(plan.max_faces), big_window=plan.big_window, max_big_faces=up(plan.max_big_faces))
 
 
-def _optimize_options(options: ReconstructOptions, plan: RasterPlan) -> OptimizeOptions:
+def _cycle_plan(mesh, cams, options) -> RasterPlan | None:
+    """None on CPU (the renderer's native kernel needs no plan); elsewhere a plan of
+    the JAX splat from the geometry, rounded to a bucket. A plan for whole views
+    also serves their crops (the same face sizes, fewer faces)."""
+    if jax.default_backend() == "cpu":
+        return None
+    return _plan_bucket(plan_render(mesh, cams, sigma=options.sigma, face_margin=1.3))
+
+
+def _optimize_options(options: ReconstructOptions, plan: RasterPlan | None, crop: int = 0) -> OptimizeOptions:
     return OptimizeOptions(
+        crop=crop,
         learning_rate=options.learning_rate,
         lambda_=options.lambda_,
         adam_quantile=options.adam_quantile,
@@ -137,8 +152,10 @@ def _row(c: int, out, *, remeshed: bool, loss, compilations: int, seconds: float
     )
 
 
-def run_per_cycle(state, cams, targets, world_lengths, options, remesh_options, t0, callback):
-    """One compiled cycle per cycle; `world_lengths[c]` is the remesh length after cycle c (0: none).
+def run_per_cycle(state, levels, world_lengths, options, remesh_options, t0, callback):
+    """One compiled cycle per cycle; `levels[c] = (cameras, targets, crop)` is what cycle c
+    fits (a pyramid level; `crop` > 0: random crops of that size) and `world_lengths[c]`
+    the remesh length after cycle c (0: none).
 
     Returns `(state, steps, cycles, plans, t0)`; `t0` is moved forward by the time
     spent in `callback(row, mesh)` so that it is not counted.
@@ -147,11 +164,12 @@ def run_per_cycle(state, cams, targets, world_lengths, options, remesh_options, 
     for c in range(options.n_cycles):
         tc = time.perf_counter()
         before = sum(cycle_compilations().values())
-        plan = _plan_bucket(plan_render(state.mesh, cams, sigma=options.sigma, face_margin=1.3))
+        cams, targets, crop = levels[c]
+        plan = _cycle_plan(state.mesh, cams, options)
         plans.add(plan)
         state, out = _cycle_jit(
             state, cams, targets, jnp.float32(options.lr_decay**c), jnp.float32(world_lengths[c]),
-            n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan), remesh_options=remesh_options,
+            n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, crop), remesh_options=remesh_options,
         )
         out = jax.device_get(out)
         record = {k: np.asarray(v) for k, v in out.record.items()}
@@ -171,24 +189,33 @@ def run_per_cycle(state, cams, targets, world_lengths, options, remesh_options, 
     return state, steps, cycles, plans, t0
 
 
-def run_one_jit(state, cams, targets, world_lengths, options, remesh_options, t0, callback):
-    """Every cycle in one compiled scan, with one plan sized for the final face count (same returns)."""
-    n = options.n_cycles
-    before = sum(cycle_compilations().values())
-    faces0 = int(state.mesh.n_faces)
+def _growing_plan(mesh, cams, world_lengths, options) -> RasterPlan:
+    """A JAX-splat plan sized for the final face count, for the whole run."""
+    faces0 = int(mesh.n_faces)
     lengths = [w for w in world_lengths if w > 0]
     growth = 1.0 if not lengths else min(options.max_faces / faces0, (lengths[0] / lengths[-1]) ** 2)
-    plan = plan_render(state.mesh, cams, sigma=options.sigma, face_margin=1.3 * max(growth, 1.0))
+    plan = plan_render(mesh, cams, sigma=options.sigma, face_margin=1.3 * max(growth, 1.0))
     # the shape changes under this plan: keep a big tier (faces up to twice the window
     # or the largest now, for an eighth of the budget) for faces that grow or stretch
-    plan = _plan_bucket(RasterPlan(
+    return _plan_bucket(RasterPlan(
         window=plan.window, max_faces=plan.max_faces, big_window=max(plan.big_window, 2 * plan.window),
         max_big_faces=max(plan.max_big_faces, plan.max_faces // 8),
     ))
+
+
+def run_one_jit(state, levels, world_lengths, options, remesh_options, t0, callback):
+    """Every cycle in one compiled scan, with one plan sized for the final face count (same returns).
+
+    One program has one image size: every cycle fits the last level (`levels[-1]`,
+    the images' own resolution, through crops when they are large)."""
+    n = options.n_cycles
+    cams, targets, crop = levels[-1]
+    before = sum(cycle_compilations().values())
+    plan = None if jax.default_backend() == "cpu" else _growing_plan(state.mesh, cams, world_lengths, options)
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
     state, out = _all_cycles(
         state, cams, targets, lr_scales, jnp.asarray(world_lengths, jnp.float32),
-        n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan), remesh_options=remesh_options,
+        n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, crop), remesh_options=remesh_options,
     )
     out = jax.device_get(out)
     wall = time.perf_counter() - t0

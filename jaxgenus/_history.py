@@ -96,6 +96,9 @@ class History(_Readable):
         start_silhouette_iou: the same for the start mesh.
         normal_error_deg: per view, the mean angle between rendered and target normals
             where both cover the pixel (normal targets only, else None).
+        resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
+            downsampled by `factor` to `size = (height, width)`, through random
+            `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`).
         ok: the result matches its images (see `jaxgenus._verdict`); warnings: why not,
             and what else to know.
     """
@@ -117,6 +120,7 @@ class History(_Readable):
     silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     start_silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     normal_error_deg: list[float] | None = None
+    resolution: list[dict] = dataclasses.field(default_factory=list)
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)
 

@@ -35,6 +35,7 @@ from jaxgenus._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differenti
 from jaxgenus._loss import LossWeights, objective, render_channels
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import uniform_laplacian
+from jaxgenus._pyramid import crop_views, target_boxes
 
 __all__ = [
     "OptimizeOptions",
@@ -90,6 +91,10 @@ class OptimizeOptions:
             the block's starting `x`), instead of the last iterate; 0 (default) is
             off. About the last `1 / (1 - average)` steps are averaged, which
             removes most of the step noise of sampled views at a fixed step size.
+        crop: render a random `crop x crop` window of each sampled view, centred in
+            the target's silhouette box (`jaxgenus._pyramid.crop_views`), instead of
+            the whole image; 0 (default) renders whole views. The cost of a step then
+            follows the crop, not the image size.
         renderer: `renderer(mesh, cameras, channels=..., **render_kwargs)`;
             `None` is `jaxgenus.render`.
         render_kwargs: extra keyword arguments of the renderer as `(name, value)` pairs
@@ -107,6 +112,7 @@ class OptimizeOptions:
     cg_rtol: float = 1e-6
     cg_max_iter: int = 2000
     average: float = 0.0
+    crop: int = 0
     renderer: Callable | None = None
     render_kwargs: tuple = ()
 
@@ -119,6 +125,8 @@ class OptimizeOptions:
             raise ValueError(f"views_per_step must be None or >= 1, got {self.views_per_step}")
         if not (isinstance(self.average, (int, float)) and 0.0 <= self.average < 1.0):
             raise ValueError(f"average must be in [0, 1), got {self.average!r}")
+        if not (isinstance(self.crop, int) and self.crop >= 0):
+            raise ValueError(f"crop must be an int >= 0, got {self.crop!r}")
         if not isinstance(self.weights, LossWeights):
             raise ValueError(f"weights must be a LossWeights, got {type(self.weights).__name__}")
         if not isinstance(self.render_kwargs, tuple):
@@ -173,6 +181,8 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     n_views = len(cameras)
     k = options.views_per_step
     avg = options.average
+    crop = options.crop if options.crop and options.crop < max(cameras.height, cameras.width) else 0
+    boxes = target_boxes(targets, margin=crop // 8) if crop else None
 
     def loss_fn(x, cams, tgt):
         m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
@@ -192,10 +202,12 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         x, u, gu_prev, adam_state, key, xa = carry
         key, sub = jax.random.split(key)
         if k is None or k >= n_views:
-            cams, tgt = cameras, targets
+            cams, tgt, box = cameras, targets, boxes
         else:
             idx = jax.random.choice(sub, n_views, (k,), replace=False)
-            cams, tgt = cameras[idx], targets[idx]
+            cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
+        if crop:
+            cams, tgt = crop_views(jax.random.fold_in(sub, 1), cams, tgt, box, crop)
         (loss, terms), gx = jax.value_and_grad(loss_fn, has_aux=True)(x, cams, tgt)
         gx = jnp.where(vmask, gx, 0.0)
         gu, info_b = solve(gx, gu_prev)

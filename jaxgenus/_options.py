@@ -52,6 +52,14 @@ class ReconstructOptions:
             target, both at alpha 0.5) is under this in any view is not ok.
         outlier_gap: the verdict's test of views that disagree with the rest: a view
             whose IoU is this far under the median of the views makes the run not ok.
+        coarse_resolution, native_cycles, crop: the resolution schedule for images of
+            any size. When the images' longer side is at least 1.5 x
+            `coarse_resolution`, all but the last `native_cycles` cycles fit copies
+            area-averaged by a power of two to about `coarse_resolution` pixels
+            (edge lengths in those pixels), and the last ones fit the images at their
+            own resolution through random `crop x crop` windows centred in the
+            silhouettes (`crop = 0`: whole views), so a step costs about the same at
+            any image size. `coarse_resolution = 0` fits every cycle at full size.
         one_jit: run all cycles (optimizer blocks and FFI remeshes) as one
             jit-compiled `lax.scan` with one rasterizer plan sized for the final
             face count, instead of one compiled block per cycle driven from Python
@@ -82,9 +90,16 @@ class ReconstructOptions:
     fine_below: float = 3.0
     min_view_iou: float = 0.8
     outlier_gap: float = 0.15
+    coarse_resolution: int = 128
+    native_cycles: int = 1
+    crop: int = 128
     one_jit: bool = False
 
     def __post_init__(self):
+        for name in ("coarse_resolution", "native_cycles", "crop"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < 0:
+                raise ValueError(f"options.{name} must be an int >= 0, got {v!r}")
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "max_faces"):
             v = getattr(self, name)
             if not isinstance(v, int) or v < 1:

@@ -37,6 +37,7 @@ from jaxgenus._history import History
 from jaxgenus._hull import hull_thickness, visual_hull_bounds
 from jaxgenus._mesh import Mesh
 from jaxgenus._optimize import init_optimizer_state
+from jaxgenus._pyramid import pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions
 from jaxgenus._start import HullTable, estimate_genus, start_mesh
@@ -83,6 +84,15 @@ def _estimate_warnings(estimate) -> list[str]:
     found = [e["genus"] for e in estimate["evidence"]]
     return [f"the genus {estimate['genus']} was estimated at a low agreement ({estimate['agreement']:.0%} of the "
             f"visual hulls: {found}): give the genus if you know it"]
+
+
+def _levels(cams, fit, factors, crop):
+    """`(cameras, targets, crop)` per cycle; crops only at the native level of a schedule."""
+    built = {}
+    for f in sorted(set(factors)):
+        level_crop = crop if (f == 1 and factors[0] > 1) else 0
+        built[f] = (scaled_cameras(cams, f), jnp.asarray(pyramid_level(fit, f)), level_crop)
+    return [built[f] for f in factors]
 
 
 def _result_genus(mesh: Mesh) -> int:
@@ -164,13 +174,22 @@ def reconstruct(
         + f" ({time.perf_counter() - t0:.1f}s)")
     state = init_optimizer_state(start.mesh, key)
     remesh_options = RemeshOptions(adaptive=options.adaptive, iterations=3)
-    world = [lengths[c] * pixel if c < len(lengths) else 0.0 for c in range(options.n_cycles)]
+    factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
+                                 options.native_cycles)
+    levels = _levels(cams, tg.fit, factors, options.crop)
+    if options.one_jit:  # one program, one image size: the native level (crops when large) throughout
+        factors, levels = [1] * options.n_cycles, [levels[-1]] * options.n_cycles
+    # a remesh sizes its edges in pixels of the level the next cycle fits
+    world = [lengths[c] * pixel * factors[min(c + 1, len(factors) - 1)] if c < len(lengths) else 0.0
+             for c in range(options.n_cycles)]
     user_callback = None if callback is None else (lambda row, m: callback(row, frame.mesh_to_world(m)))
 
     compiled0 = cycle_compilations()
     run = run_one_jit if options.one_jit else run_per_cycle
-    say(f"optimizing: {options.n_cycles} cycles x {options.steps_per_cycle} steps (the first one compiles)")
-    state, steps, cycles, plans, t0 = run(state, cams, jnp.asarray(tg.fit), world, options, remesh_options, t0, user_callback)
+    say(f"optimizing: {options.n_cycles} cycles x {options.steps_per_cycle} steps (the first one compiles)"
+        + (f"; images {cams.width}x{cams.height} fitted at 1/{', 1/'.join(str(f) for f in factors)} of their size"
+           + (f", native cycles through {options.crop}^2 crops" if levels[-1][2] else "") if factors[0] > 1 else ""))
+    state, steps, cycles, plans, t0 = run(state, levels, world, options, remesh_options, t0, user_callback)
     compiled = cycle_compilations()
     steps = {k: np.concatenate([s[k] for s in steps]) for k in steps[0]}
     g = _result_genus(state.mesh)
@@ -197,6 +216,7 @@ def reconstruct(
         silhouette_iou=verdict.silhouette_iou,
         start_silhouette_iou=verdict.start_silhouette_iou,
         normal_error_deg=verdict.normal_error_deg,
+        resolution=[{"factor": f, "size": [lv[0].height, lv[0].width], "crop": lv[2]} for f, lv in zip(factors, levels)],
         ok=verdict.ok,
         warnings=verdict.warnings + _estimate_warnings(estimate),
     )

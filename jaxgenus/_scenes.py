@@ -6,7 +6,7 @@ import numpy as np
 
 from jaxgenus._cameras import Cameras
 from jaxgenus._mesh import Mesh
-from jaxgenus._render import plan_render, render
+from jaxgenus._render import render
 
 __all__ = ["SCENES", "builtin_scene", "render_targets"]
 
@@ -69,8 +69,7 @@ def render_targets(mesh: Mesh, cams: Cameras, *, supersample: int = 3, sigma: fl
     h, w = cams.height, cams.width
     big = Cameras(cams.rotation, cams.translation, cams.focal * s, cams.principal_point * s, h * s, w * s)
     fine_sigma = sigma * 1e-2
-    plan = plan_render(mesh, big, sigma=fine_sigma)
-    img = render(mesh, big, channels=("alpha", "normal"), sigma=fine_sigma, gamma=1e-3, plan=plan)
+    img = render(mesh, big, channels=("alpha", "normal"), sigma=fine_sigma, gamma=1e-3)
     img = np.asarray(img).reshape(len(cams), h, s, w, s, 4)
     # hard coverage of each fine pixel (the soft alpha dips to 0.75 on interior edges)
     cover = (img[..., :1] >= 0.5).astype(np.float32)

@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxgenus._cameras import Cameras
 from jaxgenus._mesh import Mesh
-from jaxgenus._render import plan_render, render
+from jaxgenus._render import render
 from jaxgenus._targets import Targets
 
 __all__ = ["Verdict", "judge", "silhouette_ious"]
@@ -50,8 +50,7 @@ def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: floa
     `normals (N, H, W, 3)` the per-view mean angle (degrees) between rendered and target
     normals over the pixels both cover (NaN where none)."""
     channels = ("alpha",) if normals is None else ("alpha", "normal")
-    plan = plan_render(mesh, cams, sigma=sigma, face_margin=1.5)
-    img = np.asarray(render(mesh, cams, channels=channels, sigma=sigma, plan=plan), np.float64)
+    img = np.asarray(render(mesh, cams, channels=channels, sigma=sigma), np.float64)
     mine, theirs = img[..., 0] >= 0.5, np.asarray(alpha) >= 0.5
     inter = (mine & theirs).sum(axis=(1, 2))
     union = (mine | theirs).sum(axis=(1, 2))

@@ -167,6 +167,8 @@ NB_MODULE(_native, m) {
     nb::dict table;
     table["jaxgenus_mesh_check"] = Capsule(JgMeshCheck);
     table["jaxgenus_remesh"] = Capsule(JgRemesh);
+    table["jaxgenus_raster_forward"] = Capsule(JgRasterForward);
+    table["jaxgenus_raster_backward"] = Capsule(JgRasterBackward);
     return table;
   });
   m.attr("REPORT_SIZE") = int(jaxgenus::kReportSize);
