@@ -75,7 +75,7 @@ def load(spec: str):
     return load_shape(spec)
 
 
-def run_one(spec: str, res: int, views: int) -> dict:
+def run_one(spec: str, res: int, views: int, options: dict) -> dict:
     import jaxgenus as jg
     from _raycast import raycast
     from reconstruct import run
@@ -85,8 +85,8 @@ def run_one(spec: str, res: int, views: int) -> dict:
     t = time.perf_counter()
     targets = raycast(cams, gt)
     raycast_s = time.perf_counter() - t
-    r = run(targets, cams, genus, gt, jg.ReconstructOptions(), trace_samples=10_000)
-    r.update(shape=spec, res=res, views=views, true_genus=genus, raycast_s=raycast_s)
+    r = run(targets, cams, genus, gt, jg.ReconstructOptions(**options), trace_samples=10_000)
+    r.update(shape=spec, res=res, views=views, true_genus=genus, raycast_s=raycast_s, options=options)
     import resource
 
     r["peak_rss_gb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20
@@ -141,13 +141,14 @@ def main():
     ap.add_argument("--shapes", nargs="+", default=["shared:boot", "shared:skull", "shared:heptoroid", "thin:gecko"])
     ap.add_argument("--res", nargs="+", type=int, default=[128, 256, 512, 1024])
     ap.add_argument("--views", type=int, default=24)
+    ap.add_argument("--options", default="{}", help="ReconstructOptions overrides as JSON, e.g. '{\"crop\": 128}'")
     ap.add_argument("--out", default="docs")
     ap.add_argument("--resume", action="store_true", help="keep the rows already saved")
     ap.add_argument("--report-only", action="store_true")
     ap.add_argument("--one", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.one:
-        print(json.dumps(run_one(args.one[0], int(args.one[1]), args.views), default=float))
+        print(json.dumps(run_one(args.one[0], int(args.one[1]), args.views, json.loads(args.options)), default=float))
         return
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -159,7 +160,8 @@ def main():
             for res in args.res:
                 if (spec, res) in done:
                     continue
-                cmd = [sys.executable, __file__, "--one", spec, str(res), "--views", str(args.views)]
+                cmd = [sys.executable, __file__, "--one", spec, str(res), "--views", str(args.views),
+                       "--options", args.options]
                 proc = subprocess.run(cmd, capture_output=True, text=True)
                 if proc.returncode != 0:
                     print(f"{spec} {res}: failed\n{proc.stderr[-2000:]}", flush=True)

@@ -216,8 +216,8 @@ def main(argv=None) -> int:
                    help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "
                         "full size throughout)")
     r.add_argument("--crop", type=int, default=None,
-                   help="large images: the native-resolution cycles render random crops of this size (default 128; "
-                        "0: whole views)")
+                   help="large images: the native-resolution cycles render random crops of this size (default 0: "
+                        "whole views)")
     r.add_argument("--edge-length", type=float, default=None, help="final target edge length in pixels (default 1.4)")
     r.add_argument("--views", type=int, default=24)
     r.add_argument("--res", type=int, default=128)

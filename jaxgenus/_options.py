@@ -57,9 +57,11 @@ class ReconstructOptions:
             `coarse_resolution`, all but the last `native_cycles` cycles fit copies
             area-averaged by a power of two to about `coarse_resolution` pixels
             (edge lengths in those pixels), and the last ones fit the images at their
-            own resolution through random `crop x crop` windows centred in the
-            silhouettes (`crop = 0`: whole views), so a step costs about the same at
-            any image size. `coarse_resolution = 0` fits every cycle at full size.
+            own resolution, whole (`crop = 0`, the default) or through random
+            `crop x crop` windows centred in the silhouettes, which bounds the cost
+            of a step at any image size but fits worse (skull, 24 views of 512²:
+            CD 0.0068 with 128² crops against 0.0056 whole; docs/reconstruction.md).
+            `coarse_resolution = 0` fits every cycle at full size.
         one_jit: run all cycles (optimizer blocks and FFI remeshes) as one
             jit-compiled `lax.scan` with one rasterizer plan sized for the final
             face count, instead of one compiled block per cycle driven from Python
@@ -92,7 +94,7 @@ class ReconstructOptions:
     outlier_gap: float = 0.15
     coarse_resolution: int = 128
     native_cycles: int = 1
-    crop: int = 128
+    crop: int = 0
     one_jit: bool = False
 
     def __post_init__(self):
