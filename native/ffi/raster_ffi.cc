@@ -229,37 +229,33 @@ ffi::Error BackwardImpl(ffi::AnyBuffer v, ffi::AnyBuffer plane, ffi::AnyBuffer q
       .Attr<int64_t>("want_depth")      \
       .Attr<ffi::Span<const double>>("background")
 
+// The per-face operands both handlers take first: v, plane, qrange, attr, logw, valid, dconst.
+#define JG_RASTER_FACES(bind)            \
+  bind.Arg<ffi::AnyBuffer>()             \
+      .Arg<ffi::AnyBuffer>()             \
+      .Arg<ffi::AnyBuffer>()             \
+      .Arg<ffi::AnyBuffer>()             \
+      .Arg<ffi::AnyBuffer>()             \
+      .Arg<ffi::Buffer<ffi::PRED>>()     \
+      .Arg<ffi::AnyBuffer>()
+
 }  // namespace
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(JgRasterForward, ForwardImpl,
-                              JG_RASTER_ATTRS(ffi::Ffi::Bind()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::Buffer<ffi::PRED>>()
-                                                  .Arg<ffi::AnyBuffer>())
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>());
+                              JG_RASTER_ATTRS(JG_RASTER_FACES(ffi::Ffi::Bind()))
+                                  .Ret<ffi::AnyBuffer>()   // cov
+                                  .Ret<ffi::AnyBuffer>()   // blend
+                                  .Ret<ffi::AnyBuffer>());  // mlw
 
 XLA_FFI_DEFINE_HANDLER_SYMBOL(JgRasterBackward, BackwardImpl,
-                              JG_RASTER_ATTRS(ffi::Ffi::Bind()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::Buffer<ffi::PRED>>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>()
-                                                  .Arg<ffi::AnyBuffer>())
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>());
+                              JG_RASTER_ATTRS(JG_RASTER_FACES(ffi::Ffi::Bind())
+                                                  .Arg<ffi::AnyBuffer>()   // blend
+                                                  .Arg<ffi::AnyBuffer>()   // mlw
+                                                  .Arg<ffi::AnyBuffer>()   // g_cov
+                                                  .Arg<ffi::AnyBuffer>())  // g_blend
+                                  .Ret<ffi::AnyBuffer>()   // d v
+                                  .Ret<ffi::AnyBuffer>()   // d plane
+                                  .Ret<ffi::AnyBuffer>()   // d qrange
+                                  .Ret<ffi::AnyBuffer>()   // d attr
+                                  .Ret<ffi::AnyBuffer>()   // d logw
+                                  .Ret<ffi::AnyBuffer>());  // d dconst

@@ -20,16 +20,7 @@
 using namespace jaxgenus;
 using namespace jaxgenus::he;
 
-static int g_failures = 0;
-#define CHECK(cond, ...)                                          \
-  do {                                                            \
-    if (!(cond)) {                                                \
-      ++g_failures;                                               \
-      std::printf("FAIL %s:%d: %s: ", __FILE__, __LINE__, #cond); \
-      std::printf(__VA_ARGS__);                                   \
-      std::printf("\n");                                          \
-    }                                                             \
-  } while (0)
+#include "check.h"
 
 struct Soup {
   std::vector<double> V;
