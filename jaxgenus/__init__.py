@@ -37,6 +37,7 @@ from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus._plan import RasterPlan, plan_render, static_plan
 from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
+from jaxgenus._shading import LIGHTING_SHAPE, directional_lighting, face_colors, irradiance, render_photo
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
 from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
 from jaxgenus._largesteps import (
@@ -49,6 +50,7 @@ from jaxgenus._largesteps import (
 from jaxgenus._adam import GradientTransformation, UniformAdamState, uniform_adam
 from jaxgenus._optimize import (
     RECORD_KEYS,
+    Appearance,
     OptimizeOptions,
     OptimizerState,
     init_optimizer_state,
@@ -66,11 +68,13 @@ except _PackageNotFoundError:  # imported from a source tree that was never inst
     __version__ = "0+unknown"
 
 __all__ = [
+    "Appearance",
     "CHANNEL_SIZES",
     "Cameras",
     "CycleRecord",
     "GradientTransformation",
     "History",
+    "LIGHTING_SHAPE",
     "LoadedImages",
     "LossWeights",
     "Mesh",
@@ -96,15 +100,18 @@ __all__ = [
     "cameras_from_opengl",
     "cameras_to_opencv",
     "cameras_to_opengl",
+    "directional_lighting",
     "capacity_bucket",
     "component_genera",
     "connected_components",
     "euler_characteristic",
+    "face_colors",
     "face_normals",
     "from_differential",
     "genus",
     "genus_primitive",
     "image_loss",
+    "irradiance",
     "init_optimizer_state",
     "inversion_penalty",
     "is_closed_manifold",
@@ -127,6 +134,7 @@ __all__ = [
     "remesh_in_jit",
     "render",
     "render_channels",
+    "render_photo",
     "render_targets",
     "save_mesh",
     "sphere_cameras",

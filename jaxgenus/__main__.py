@@ -87,7 +87,9 @@ def _write(rec, out):
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    jg.save_mesh(rec.mesh, out)
+    jg.save_mesh(rec.mesh, out, vertex_colors=rec.albedo)  # photo targets: the albedo as vertex colours
+    if rec.albedo is not None:
+        np.save(out.with_suffix(".albedo.npy"), rec.albedo)
     out.with_suffix(".json").write_text(json.dumps(rec.history.to_json(), default=float))
     print(f"wrote {out} and {out.with_suffix('.json')}")
 
@@ -207,7 +209,8 @@ def main(argv=None) -> int:
     r.add_argument("--threshold", type=float, default=0.1, help="with --background: a pixel is the object when its "
                    "largest channel differs from the background by more than this (default 0.1); check the masks")
     r.add_argument("--targets", choices=["silhouette", "normals", "photo"],
-                   help="what RGB images hold (default: inferred; photos are fitted by their masks for now)")
+                   help="what RGB images hold (default: inferred); photos are fitted through Lambertian shading "
+                        "with an estimated albedo (written as vertex colours, and exactly in OUT.albedo.npy) and light")
     r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Int, PyTree
 
-__all__ = ["GradientTransformation", "UniformAdamState", "uniform_adam"]
+__all__ = ["GradientTransformation", "UniformAdamState", "adam", "uniform_adam"]
 
 
 class GradientTransformation(NamedTuple):
@@ -93,5 +93,39 @@ def uniform_adam(
 
         updates = jax.tree.map(step, mu, nu)
         return updates, UniformAdamState(count=count, mu=mu, nu=nu)
+
+    return GradientTransformation(init, update)
+
+
+def adam(learning_rate, b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> GradientTransformation:
+    """Plain (per-entry) Adam as an optax-style transformation: `-lr * m_hat / (eps + sqrt(v_hat))`.
+
+    Used for the per-vertex albedo and the lighting of photometric fits, whose
+    entries have their own scales (uniform Adam's shared step suits positions).
+    """
+    for name, val in (("b1", b1), ("b2", b2)):
+        if not 0.0 <= float(val) < 1.0:
+            raise ValueError(f"{name} must be in [0, 1), got {val}")
+
+    def init(params):
+        return UniformAdamState(
+            count=jnp.zeros((), jnp.int32),
+            mu=jax.tree.map(jnp.zeros_like, params),
+            nu=jax.tree.map(jnp.zeros_like, params),
+        )
+
+    def update(grads, state, params=None, **extra_args):
+        del params, extra_args
+        count = state.count + 1
+        mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
+        nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
+        t = count.astype(jnp.result_type(float))
+        c1, c2 = 1.0 - b1**t, 1.0 - b2**t
+
+        def step(m, v):
+            m_hat = m / c1.astype(m.dtype)
+            return (-learning_rate * m_hat / (eps + jnp.sqrt(v / c2.astype(v.dtype)))).astype(m.dtype)
+
+        return jax.tree.map(step, mu, nu), UniformAdamState(count=count, mu=mu, nu=nu)
 
     return GradientTransformation(init, update)

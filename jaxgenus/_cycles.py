@@ -3,7 +3,8 @@
 `cycle` is one cycle: `optimize_steps` (a `lax.scan` of large-steps uniform Adam
 on the soft-raster loss), the rasterizer's overflow count at the result, and,
 when the cycle's target edge length is > 0, the native V-cycle remesher through
-the XLA FFI, carrying the Adam moments (the rest shape of the inversion penalty
+the XLA FFI, carrying the Adam moments and, in photometric fits, the albedo
+and its moments (the rest shape of the inversion penalty
 becomes the new shape). Host clock readings after the optimizer and after the
 remesh time the two parts in both drivers.
 
@@ -34,7 +35,7 @@ import numpy as np
 from jax.experimental import io_callback
 
 from jaxgenus._history import CycleRecord
-from jaxgenus._optimize import OptimizeOptions, OptimizerState, optimize_steps
+from jaxgenus._optimize import Appearance, OptimizeOptions, OptimizerState, optimize_steps
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions, RemeshStatus, remesh_in_jit
 from jaxgenus._plan import RasterPlan, plan_render
@@ -63,12 +64,22 @@ def _clock_us(_after) -> np.ndarray:
 
 def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
     """Remesh the state's mesh (FFI), carrying the Adam moments; rest shape := new shape."""
-    adam = state.adam
-    attrs = jnp.concatenate([adam.mu, adam.nu], axis=1)
+    adam, app = state.adam, state.appearance
+    columns = [adam.mu, adam.nu]
+    if app is not None:  # the albedo and its Adam moments ride along (the lighting is global)
+        columns += [app.albedo, app.adam.mu[0], app.adam.nu[0]]
+    attrs = jnp.concatenate(columns, axis=1)
     mesh, carried, info = remesh_in_jit(state.mesh, dataclasses.replace(options, target_edge_length=length), attrs)
     carried = carried.astype(adam.mu.dtype)
-    new_adam = adam._replace(mu=carried[:, :3], nu=jnp.maximum(carried[:, 3:], 0.0))
-    new_state = OptimizerState(mesh=mesh, adam=new_adam, rest_vertices=mesh.vertices, step=state.step, key=state.key)
+    new_adam = adam._replace(mu=carried[:, :3], nu=jnp.maximum(carried[:, 3:6], 0.0))
+    if app is not None:
+        live = mesh.vertex_mask[:, None]
+        albedo = jnp.where(live, jnp.maximum(carried[:, 6:9], 0.0), 0.0)
+        app_adam = app.adam._replace(mu=(carried[:, 9:12], app.adam.mu[1]),
+                                     nu=(jnp.maximum(carried[:, 12:15], 0.0), app.adam.nu[1]))
+        app = Appearance(albedo=albedo, lighting=app.lighting, adam=app_adam)
+    new_state = OptimizerState(mesh=mesh, adam=new_adam, rest_vertices=mesh.vertices, step=state.step, key=state.key,
+                               appearance=app)
     return new_state, info.status
 
 
@@ -133,6 +144,8 @@ def _optimize_options(options: ReconstructOptions, plan: RasterPlan | None, crop
         weights=options.weights,
         views_per_step=options.views_per_step,
         average=options.average,
+        albedo_learning_rate=options.albedo_learning_rate,
+        lighting_learning_rate=options.lighting_learning_rate,
         render_kwargs=(("sigma", options.sigma), ("gamma", options.gamma), ("plan", plan)),
     )
 

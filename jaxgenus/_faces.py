@@ -82,7 +82,7 @@ def check_inputs(mesh, cameras):
         raise ValueError(f"cameras must be a jaxgenus.Cameras, got {type(cameras).__name__}")
 
 
-def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> Faces:
+def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face_colors=None) -> Faces:
     """Per view and face: projection, culling, depth plane and blend attributes."""
     dtype = mesh.vertices.dtype
     rot = cameras.rotation.astype(dtype)
@@ -152,6 +152,8 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient) -> F
         for name in attrs:
             if name == "normal":
                 parts.append(jnp.broadcast_to(nrm[None], (n_views, n_faces, 3)))
+            elif name == "color":
+                parts.append(jnp.broadcast_to(face_colors.astype(dtype)[None], (n_views, n_faces, 3)))
             else:  # shaded
                 if light is None:
                     ldir = -rot[:, 2, :]  # headlight: towards the camera

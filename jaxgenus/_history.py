@@ -96,6 +96,10 @@ class History(_Readable):
         start_silhouette_iou: the same for the start mesh.
         normal_error_deg: per view, the mean angle between rendered and target normals
             where both cover the pixel (normal targets only, else None).
+        photo_error: per view, the mean absolute RGB error of the result's render
+            (albedo and lighting) against the photo where both cover (photo targets only).
+        lighting: the estimated `(3, 24)` lighting as nested lists (photo targets only;
+            see `jaxgenus.render_photo` for its convention).
         resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
             downsampled by `factor` to `size = (height, width)`, through random
             `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`).
@@ -120,6 +124,8 @@ class History(_Readable):
     silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     start_silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     normal_error_deg: list[float] | None = None
+    photo_error: list[float] | None = None
+    lighting: list | None = None
     resolution: list[dict] = dataclasses.field(default_factory=list)
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)

@@ -28,10 +28,22 @@ def load_mesh(path, *, capacity=None) -> Mesh:
     return Mesh.from_numpy(np.asarray(loaded.vertices), np.asarray(loaded.faces), capacity=capacity)
 
 
-def save_mesh(mesh: Mesh, path) -> None:
-    """Write the live part of `mesh` to `path`; the format follows the extension (.obj, .ply, ...)."""
+def save_mesh(mesh: Mesh, path, *, vertex_colors=None) -> None:
+    """Write the live part of `mesh` to `path`; the format follows the extension (.obj, .ply, ...).
+
+    `vertex_colors`: optional `(V, 3)` RGB in [0, 1] per live vertex (e.g.
+    `Reconstruction.albedo`), clipped to [0, 1] and written as 8-bit vertex colours
+    (PLY: `red green blue` vertex properties; OBJ: `v x y z r g b`).
+    """
     path = os.fspath(path)
     ext = os.path.splitext(path)[1].lower().lstrip(".")
     if not ext:
         raise ValueError(f"path: cannot tell the format of {path!r} (no extension)")
-    mesh.to_trimesh().export(path, file_type=ext)
+    tm = mesh.to_trimesh()
+    if vertex_colors is not None:
+        c = np.asarray(vertex_colors, np.float64)
+        if c.shape != (len(tm.vertices), 3) or not np.all(np.isfinite(c)):
+            raise ValueError(f"vertex_colors must be finite with shape ({len(tm.vertices)}, 3), got {c.shape}")
+        rgba = np.concatenate([np.round(np.clip(c, 0.0, 1.0) * 255.0), np.full((len(c), 1), 255.0)], axis=1)
+        tm.visual.vertex_colors = rgba.astype(np.uint8)
+    tm.export(path, file_type=ext)

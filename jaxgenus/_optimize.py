@@ -29,15 +29,17 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
-from jaxgenus._adam import UniformAdamState, uniform_adam
+from jaxgenus._adam import UniformAdamState, adam as plain_adam, uniform_adam
 from jaxgenus._energies import inverted_face_count
 from jaxgenus._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
 from jaxgenus._loss import LossWeights, objective, render_channels
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import uniform_laplacian
 from jaxgenus._pyramid import crop_views, target_boxes
+from jaxgenus._shading import LIGHTING_SHAPE
 
 __all__ = [
+    "Appearance",
     "OptimizeOptions",
     "OptimizerState",
     "RECORD_KEYS",
@@ -53,6 +55,8 @@ RECORD_KEYS = (
     "normal",
     "bilaplacian",
     "inversion",
+    "photo",
+    "albedo_smoothness",
     "grad_norm",
     "cg_iterations_forward",
     "cg_iterations_backward",
@@ -91,6 +95,8 @@ class OptimizeOptions:
             the block's starting `x`), instead of the last iterate; 0 (default) is
             off. About the last `1 / (1 - average)` steps are averaged, which
             removes most of the step noise of sampled views at a fixed step size.
+        albedo_learning_rate, lighting_learning_rate: plain-Adam steps of the
+            per-vertex albedo and of the lighting (photo targets only).
         crop: render a random `crop x crop` window of each sampled view, centred in
             the target's silhouette box (`jaxgenus._pyramid.crop_views`), instead of
             the whole image; 0 (default) renders whole views. The cost of a step then
@@ -113,12 +119,17 @@ class OptimizeOptions:
     cg_max_iter: int = 2000
     average: float = 0.0
     crop: int = 0
+    albedo_learning_rate: float = 1e-2
+    lighting_learning_rate: float = 5e-2
     renderer: Callable | None = None
     render_kwargs: tuple = ()
 
     def __post_init__(self):
         if not self.learning_rate > 0:
             raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
+        for name in ("albedo_learning_rate", "lighting_learning_rate"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
         if not self.lambda_ >= 0:
             raise ValueError(f"lambda_ must be >= 0, got {self.lambda_}")
         if self.views_per_step is not None and self.views_per_step < 1:
@@ -136,6 +147,20 @@ class OptimizeOptions:
         return uniform_adam(self.learning_rate, self.b1, self.b2, self.eps, self.adam_quantile)
 
 
+class Appearance(eqx.Module):
+    """What a photometric fit estimates besides the shape (a PyTree; see `jaxgenus.render_photo`).
+
+    Attributes:
+        albedo: `(Vcap, 3)` per-vertex RGB albedo (>= 0), row for row with the mesh's vertices.
+        lighting: `(3, 24)` spherical-harmonic lighting (module doc of `_shading`).
+        adam: plain-Adam state of `(albedo, lighting)`.
+    """
+
+    albedo: Float[Array, "V 3"]
+    lighting: Float[Array, "3 24"]
+    adam: UniformAdamState
+
+
 class OptimizerState(eqx.Module):
     """State carried between `optimize_block` calls (a PyTree).
 
@@ -145,6 +170,7 @@ class OptimizerState(eqx.Module):
         rest_vertices: `(Vcap, 3)` shape at the last remesh (inversion penalty reference).
         step: int32 steps taken since `init_optimizer_state`.
         key: PRNG key for view sampling.
+        appearance: the albedo and lighting of a photometric fit (`Appearance`), else None.
     """
 
     mesh: Mesh
@@ -152,21 +178,37 @@ class OptimizerState(eqx.Module):
     rest_vertices: Float[Array, "V 3"]
     step: Int[Array, ""]
     key: PRNGKeyArray
+    appearance: Appearance | None = None
 
 
-def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray) -> OptimizerState:
+def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting=None) -> OptimizerState:
     """A fresh state at a copy of `mesh` (zero moments, rest shape = current shape).
 
+    `albedo` (an RGB triple, or `(Vcap, 3)` per vertex) starts a photometric fit
+    (`Appearance`), with `lighting` `(3, 24)` (default zeros: uniform white light).
     The state owns its buffers, so donating it to `optimize_block` leaves `mesh` intact.
     """
     if not isinstance(mesh, Mesh):
         raise ValueError(f"mesh must be a Mesh, got {type(mesh).__name__}")
+    appearance = None
+    if albedo is not None or lighting is not None:
+        dtype = mesh.vertices.dtype
+        a = jnp.asarray(0.5 if albedo is None else albedo, dtype)
+        a = jnp.broadcast_to(a, (mesh.vertex_capacity, 3)) if a.ndim <= 1 else a
+        if a.shape != (mesh.vertex_capacity, 3) or not bool(jnp.all(jnp.isfinite(a))) or bool(jnp.any(a < 0)):
+            raise ValueError(f"albedo must be finite, >= 0, an RGB triple or ({mesh.vertex_capacity}, 3); got shape {a.shape}")
+        a = jnp.where(mesh.vertex_mask[:, None], a, 0.0)
+        lt = jnp.zeros(LIGHTING_SHAPE, dtype) if lighting is None else jnp.asarray(lighting, dtype)
+        if lt.shape != LIGHTING_SHAPE or not bool(jnp.all(jnp.isfinite(lt))):
+            raise ValueError(f"lighting must be finite with shape {LIGHTING_SHAPE}, got {lt.shape}")
+        appearance = Appearance(albedo=jnp.array(a), lighting=jnp.array(lt), adam=plain_adam(1.0).init((a, lt)))
     return OptimizerState(
         mesh=jax.tree.map(jnp.array, mesh),
         adam=uniform_adam(1.0).init(mesh.vertices),
         rest_vertices=jnp.array(mesh.vertices),
         step=jnp.zeros((), jnp.int32),
         key=key,
+        appearance=appearance,
     )
 
 
@@ -184,7 +226,11 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     crop = options.crop if options.crop and options.crop < max(cameras.height, cameras.width) else 0
     boxes = target_boxes(targets, margin=crop // 8) if crop else None
 
-    def loss_fn(x, cams, tgt):
+    photo = state.appearance is not None
+    app_adam = plain_adam(1.0) if photo else None
+    app_lr = (options.albedo_learning_rate, options.lighting_learning_rate)
+
+    def loss_fn(x, app, cams, tgt):
         m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
         return objective(
             m,
@@ -194,12 +240,22 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
             weights=options.weights,
             renderer=options.renderer,
             render_kwargs=dict(options.render_kwargs),
+            appearance=app,
         )
+
+    def appearance_step(app, g_app, app_state, ok):
+        """Plain Adam on (albedo, lighting), albedo kept >= 0 and 0 on padding."""
+        upd, new_state = app_adam.update(g_app, app_state)
+        upd = tuple(u * (lr * lr_scale) for u, lr in zip(upd, app_lr))
+        albedo = jnp.where(vmask, jnp.maximum(app[0] + upd[0], 0.0), 0.0)
+        new = (albedo, app[1] + upd[1])
+        ok = ok & jnp.all(jnp.isfinite(new[0])) & jnp.all(jnp.isfinite(new[1]))
+        return new, new_state, ok
 
     solve = lambda b, x0: largesteps_solve(laplacian, b, lam, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
 
     def step(carry, _):
-        x, u, gu_prev, adam_state, key, xa = carry
+        x, u, gu_prev, adam_state, key, xa, app, app_state = carry
         key, sub = jax.random.split(key)
         if k is None or k >= n_views:
             cams, tgt, box = cameras, targets, boxes
@@ -208,7 +264,7 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
             cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
         if crop:
             cams, tgt = crop_views(jax.random.fold_in(sub, 1), cams, tgt, box, crop)
-        (loss, terms), gx = jax.value_and_grad(loss_fn, has_aux=True)(x, cams, tgt)
+        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt)
         gx = jnp.where(vmask, gx, 0.0)
         gu, info_b = solve(gx, gu_prev)
         updates, new_adam = adam.update(gu, adam_state)
@@ -216,12 +272,18 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         new_u = jnp.where(vmask, u + updates, 0.0)
         new_x, info_f = solve(new_u, x)
         ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
+        new_app, new_app_state = app, app_state
+        if photo:
+            new_app, new_app_state, ok = appearance_step(app, g_app, app_state, ok)
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
-        x, u, gu, adam_state = keep((new_x, new_u, gu, new_adam), (x, u, gu_prev, adam_state))
+        x, u, gu, adam_state, app, app_state = keep(
+            (new_x, new_u, gu, new_adam, new_app, new_app_state), (x, u, gu_prev, adam_state, app, app_state)
+        )
         xa = avg * xa + (1.0 - avg) * x if avg > 0 else x
         status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
         zero = jnp.zeros((), x.dtype)
-        record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion")}
+        record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion", "photo",
+                                                              "albedo_smoothness")}
         record.update(
             loss=loss,
             grad_norm=jnp.sqrt(jnp.sum(gx * gx)),
@@ -231,15 +293,19 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
             inverted_faces=inverted_face_count(x, state.rest_vertices, mesh.faces, fmask),
             status=status,
         )
-        return (x, u, gu, adam_state, key, xa), record
+        return (x, u, gu, adam_state, key, xa, app, app_state), record
 
     x0 = mesh.vertices
     u0 = jnp.where(vmask, to_differential(laplacian, x0, lam), 0.0)
-    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key, x0)
-    (_, _, _, adam_state, key, x), record = jax.lax.scan(step, carry, None, length=n_steps)
+    ap = state.appearance
+    app0 = (ap.albedo, ap.lighting) if photo else None
+    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key, x0, app0, ap.adam if photo else None)
+    (_, _, _, adam_state, key, x, app, app_state), record = jax.lax.scan(step, carry, None, length=n_steps)
     new_mesh = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
+    new_app = Appearance(albedo=app[0], lighting=app[1], adam=app_state) if photo else None
     new_state = OptimizerState(
-        mesh=new_mesh, adam=adam_state, rest_vertices=state.rest_vertices, step=state.step + n_steps, key=key
+        mesh=new_mesh, adam=adam_state, rest_vertices=state.rest_vertices, step=state.step + n_steps, key=key,
+        appearance=new_app,
     )
     return new_state, {name: record[name] for name in RECORD_KEYS}
 
@@ -268,7 +334,8 @@ def optimize_block(
             donated (do not reuse the argument).
         cameras: `Cameras` with N views.
         targets: `(N, H, W, 1)` silhouettes or `(N, H, W, 4)` RGBA normal images
-            (see `jaxgenus._energies`), one per camera.
+            (see `jaxgenus._loss`), one per camera; RGBA photos when `state` has an
+            `appearance` (from `init_optimizer_state(..., albedo=...)`).
         n_steps: number of steps (static).
         options: `OptimizeOptions` (static).
         lr_scale: factor on `options.learning_rate` for this block; a runtime value,
@@ -284,7 +351,7 @@ def optimize_block(
         raise ValueError(f"options must be an OptimizeOptions, got {type(options).__name__}")
     if not isinstance(state, OptimizerState):
         raise ValueError(f"state must be an OptimizerState, got {type(state).__name__}")
-    render_channels(targets)
+    render_channels(targets, state.appearance is not None)
     if targets.shape[:3] != (len(cameras), cameras.height, cameras.width):
         raise ValueError(
             f"targets must have shape ({len(cameras)}, {cameras.height}, {cameras.width}, C), got {targets.shape}"

@@ -52,6 +52,11 @@ class ReconstructOptions:
             target, both at alpha 0.5) is under this in any view is not ok.
         outlier_gap: the verdict's test of views that disagree with the rest: a view
             whose IoU is this far under the median of the views makes the run not ok.
+        albedo_learning_rate, lighting_learning_rate: photo targets: plain-Adam steps
+            of the per-vertex albedo and of the lighting (scaled by `lr_decay ** cycle`).
+        max_photo_error: photo targets: the verdict fails when the median over the views
+            of the mean absolute RGB error (result rendered with its albedo and
+            lighting, against the photos) is above this.
         coarse_resolution, native_cycles, crop: the resolution schedule for images of
             any size. When the images' longer side is at least 1.5 x
             `coarse_resolution`, all but the last `native_cycles` cycles fit copies
@@ -96,6 +101,9 @@ class ReconstructOptions:
     native_cycles: int = 1
     crop: int = 0
     one_jit: bool = False
+    max_photo_error: float = 0.1
+    albedo_learning_rate: float = 1e-2
+    lighting_learning_rate: float = 5e-2
 
     def __post_init__(self):
         for name in ("coarse_resolution", "native_cycles", "crop"):
@@ -108,7 +116,8 @@ class ReconstructOptions:
                 raise ValueError(f"options.{name} must be a positive int, got {v!r}")
         if not 0.0 < self.lr_decay <= 1.0:
             raise ValueError(f"options.lr_decay must be in (0, 1], got {self.lr_decay!r}")
-        for name in ("learning_rate", "sigma", "gamma", "initial_edge_length", "final_edge_length"):
+        for name in ("learning_rate", "sigma", "gamma", "initial_edge_length", "final_edge_length",
+                     "albedo_learning_rate", "lighting_learning_rate"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"options.{name} must be a positive number, got {v!r}")
@@ -122,7 +131,7 @@ class ReconstructOptions:
             raise ValueError(f"options.hull_resolutions must be ints >= 8, got {self.hull_resolutions!r}")
         if not (isinstance(self.fine_below, (int, float)) and math.isfinite(self.fine_below) and self.fine_below >= 0):
             raise ValueError(f"options.fine_below must be a number >= 0, got {self.fine_below!r}")
-        for name in ("min_view_iou", "outlier_gap"):
+        for name in ("min_view_iou", "outlier_gap", "max_photo_error"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
                 raise ValueError(f"options.{name} must be in [0, 1], got {v!r}")

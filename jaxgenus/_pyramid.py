@@ -47,11 +47,12 @@ def scaled_cameras(cams: Cameras, factor: int) -> Cameras:
     )
 
 
-def pyramid_level(fit: np.ndarray, factor: int) -> np.ndarray:
-    """Targets `(N, H, W, C)` (C = 1: alpha; C = 4: normal colour + alpha) averaged
-    over `factor x factor` pixel blocks. Outside the image counts as background
-    (alpha 0). Normal colours are averaged premultiplied by alpha, as the renderer
-    composites normals over the background with its coverage."""
+def pyramid_level(fit: np.ndarray, factor: int, *, normals: bool = True) -> np.ndarray:
+    """Targets `(N, H, W, C)` (C = 1: alpha; C = 4: colour + alpha) averaged over
+    `factor x factor` pixel blocks. Outside the image counts as background
+    (alpha 0). Normal colours (`normals`) are averaged premultiplied by alpha, as
+    the renderer composites normals over the background with its coverage; other
+    colours (photos) are already premultiplied and are averaged as they are."""
     fit = np.asarray(fit)
     if factor == 1:
         return fit
@@ -59,11 +60,12 @@ def pyramid_level(fit: np.ndarray, factor: int) -> np.ndarray:
     hh, ww = -(-h // factor), -(-w // factor)
     pad = np.zeros((n, hh * factor, ww * factor, c), np.float32)
     pad[:, :h, :w] = fit
-    if c == 4:
+    normals = normals and c == 4
+    if normals:
         normal = 2.0 * pad[..., :3] - 1.0
         pad[..., :3] = pad[..., 3:4] * normal
     blocks = pad.reshape(n, hh, factor, ww, factor, c).mean(axis=(2, 4))
-    if c == 4:
+    if normals:
         blocks[..., :3] = 0.5 * (blocks[..., :3] + 1.0)
     return blocks.astype(np.float32)
 

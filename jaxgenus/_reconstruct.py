@@ -40,6 +40,7 @@ from jaxgenus._optimize import init_optimizer_state
 from jaxgenus._pyramid import pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions
+from jaxgenus._shading import render_photo
 from jaxgenus._start import HullTable, estimate_genus, start_mesh
 from jaxgenus._targets import check_targets
 from jaxgenus._verdict import judge
@@ -60,6 +61,9 @@ class Reconstruction:
             `CycleRecord` per cycle (`history["cycles"]`), the start, the
             thin-structure switch and the compilations.
         options: the `ReconstructOptions` that ran (`options.fine()` when the run switched).
+        albedo: photo targets: `(V, 3)` float32 RGB albedo per vertex, row for row with
+            `mesh.to_numpy()[0]` (under the convention of `jaxgenus.render_photo`: the
+            lighting `history["lighting"]` has mean 1), else None.
     """
 
     mesh: Mesh
@@ -67,6 +71,22 @@ class Reconstruction:
     genus_ok: bool
     history: History
     options: ReconstructOptions
+    albedo: np.ndarray | None = None
+
+    @property
+    def lighting(self) -> np.ndarray | None:
+        """Photo targets: the estimated `(3, 24)` lighting (`history["lighting"]`), else None."""
+        lt = self.history.lighting
+        return None if lt is None else np.asarray(lt, np.float32)
+
+    def render_photo(self, cams: Cameras, **render_kwargs):
+        """Photo targets: RGBA renders of the result with its albedo and lighting in any `cams`
+        (user units; held-out views), `(N, H, W, 4)`."""
+        if self.albedo is None:
+            raise ValueError("render_photo needs a reconstruction from photo targets (albedo is None)")
+        pad = np.zeros((self.mesh.vertex_capacity, 3), np.float32)
+        pad[: len(self.albedo)] = self.albedo
+        return render_photo(self.mesh, cams, pad, self.lighting, **render_kwargs)
 
 
 def _check_arguments(genus, options, cams):
@@ -86,13 +106,21 @@ def _estimate_warnings(estimate) -> list[str]:
             f"visual hulls: {found}): give the genus if you know it"]
 
 
-def _levels(cams, fit, factors, crop):
+def _levels(cams, tg, factors, crop):
     """`(cameras, targets, crop)` per cycle; crops only at the native level of a schedule."""
     built = {}
     for f in sorted(set(factors)):
         level_crop = crop if (f == 1 and factors[0] > 1) else 0
-        built[f] = (scaled_cameras(cams, f), jnp.asarray(pyramid_level(fit, f)), level_crop)
+        level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
+        built[f] = (scaled_cameras(cams, f), jnp.asarray(level), level_crop)
     return [built[f] for f in factors]
+
+
+def _initial_albedo(tg) -> np.ndarray:
+    """The median colour of the photos' fully covered pixels (the start's lighting is uniform, E = 1)."""
+    inside = tg.alpha >= 0.99
+    rgb = tg.fit[..., :3][inside] if inside.any() else tg.fit[..., :3][tg.alpha >= 0.5]
+    return np.maximum(np.median(rgb, axis=0), 0.02).astype(np.float32)
 
 
 def _result_genus(mesh: Mesh) -> int:
@@ -125,8 +153,10 @@ def reconstruct(
             of its grids). Holes no silhouette shows are missed and carving can add
             spurious handles (a genus-0 dinosaur's 12-view hull has genus 3-9):
             give the genus when you know it.
-        targets: what RGBA images hold: `"normals"`, `"photo"` (fitted by their masks
-            only, for now) or `"silhouette"` (use A only); None infers it.
+        targets: what RGBA images hold: `"normals"`, `"photo"` (fitted through
+            Lambertian shading with a per-vertex albedo and an unknown distant light,
+            both estimated: `Reconstruction.albedo`, `history["lighting"]`) or
+            `"silhouette"` (use A only); None infers it.
         options: `ReconstructOptions` (`ReconstructOptions.nicolet()` for the baseline).
         key: PRNG key for view sampling (default `jax.random.key(0)`); the result is
             deterministic for a given key.
@@ -172,11 +202,12 @@ def reconstruct(
     say(f"start: {start.kind} of genus {genus}, {int(start.mesh.n_faces)} faces"
         + (f", {start.tunnels} handles drilled (the silhouettes show fewer)" if start.tunnels else "")
         + f" ({time.perf_counter() - t0:.1f}s)")
-    state = init_optimizer_state(start.mesh, key)
+    photo = tg.kind == "photo"
+    state = init_optimizer_state(start.mesh, key, albedo=_initial_albedo(tg) if photo else None)
     remesh_options = RemeshOptions(adaptive=options.adaptive, iterations=3)
     factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
                                  options.native_cycles)
-    levels = _levels(cams, tg.fit, factors, options.crop)
+    levels = _levels(cams, tg, factors, options.crop)
     if options.one_jit:  # one program, one image size: the native level (crops when large) throughout
         factors, levels = [1] * options.n_cycles, [levels[-1]] * options.n_cycles
     # a remesh sizes its edges in pixels of the level the next cycle fits
@@ -194,8 +225,11 @@ def reconstruct(
     steps = {k: np.concatenate([s[k] for s in steps]) for k in steps[0]}
     g = _result_genus(state.mesh)
     expected = 0 if options.start == "sphere" else genus
+    app = state.appearance
     verdict = judge(state.mesh, start.mesh, cams, tg, steps, cycles, genus_ok=(g == expected), sigma=options.sigma,
-                    min_iou=options.min_view_iou, outlier_gap=options.outlier_gap, photo=tg.kind == "photo")
+                    min_iou=options.min_view_iou, outlier_gap=options.outlier_gap,
+                    appearance=None if app is None else (app.albedo, app.lighting),
+                    photos=np.asarray(images, np.float32) if photo else None, max_photo_error=options.max_photo_error)
     say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
         f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views")
     history = History(
@@ -216,9 +250,13 @@ def reconstruct(
         silhouette_iou=verdict.silhouette_iou,
         start_silhouette_iou=verdict.start_silhouette_iou,
         normal_error_deg=verdict.normal_error_deg,
+        photo_error=verdict.photo_error,
+        lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(),
         resolution=[{"factor": f, "size": [lv[0].height, lv[0].width], "crop": lv[2]} for f, lv in zip(factors, levels)],
         ok=verdict.ok,
         warnings=verdict.warnings + _estimate_warnings(estimate),
     )
     mesh = frame.mesh_to_world(state.mesh)
-    return Reconstruction(mesh=mesh, genus=g, genus_ok=(g == expected), history=history, options=options)
+    albedo = None if app is None else np.array(app.albedo[: int(state.mesh.n_vertices)], np.float32)
+    return Reconstruction(mesh=mesh, genus=g, genus_ok=(g == expected), history=history, options=options,
+                          albedo=albedo)

@@ -25,8 +25,8 @@ from jaxgenus._splat_native import splat_all
 __all__ = ["render", "RenderInfo", "CHANNEL_SIZES"]
 
 #: Number of image channels each requested channel contributes, in request order.
-CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1}
-_BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,)}
+CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1, "color": 3}
+_BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0)}
 
 
 class RenderInfo(eqx.Module):
@@ -81,6 +81,7 @@ def render(
     cull_backfaces: bool = True,
     light_direction=None,
     ambient: float = 0.3,
+    face_colors=None,
     plan: RasterPlan | None = None,
     return_info: bool = False,
 ):
@@ -98,6 +99,8 @@ def render(
     * `"shaded"` (1): Lambertian `ambient + (1 - ambient) * max(0, n . l)` blended
       the same way; `l` is `light_direction` (world, pointing to the light) or, if
       None, a headlight (towards each camera).
+    * `"color"` (3): the per-face RGB `face_colors` blended the same way (a photo's
+      shading, see `jaxgenus.render_photo`).
 
     Args:
         sigma: edge blur in pixels (the sigmoid's scale; 10-90 % over 4.4 sigma).
@@ -109,6 +112,7 @@ def render(
             coverage and blend weight scale by `sigmoid(cos / FACING_WIDTH)`, so the
             image stays continuous in the vertices as a face turns at the contour
             (a hard cut there breaks the silhouette gradient). False: all faces.
+        face_colors: `(face capacity, 3)` RGB per face, needed by `"color"` (differentiable).
         plan: None (default): on CPU the native kernel (`_splat_native`, C++ behind
             the XLA FFI) renders every face exactly, with no windows or budgets, under
             `jit` or not; on other platforms the JAX splat runs with a plan from the
@@ -151,6 +155,12 @@ def render(
         ld = np.asarray(light_direction, dtype=float)
         if ld.shape != (3,) or not np.linalg.norm(ld) > 0:
             raise ValueError("light_direction must be a non-zero 3-vector")
+    if ("color" in channels) != (face_colors is not None):
+        raise ValueError("face_colors must be given exactly when channels has 'color'")
+    if face_colors is not None:
+        face_colors = jnp.asarray(face_colors)
+        if face_colors.shape != (mesh.face_capacity, 3):
+            raise ValueError(f"face_colors must have shape (face capacity {mesh.face_capacity}, 3), got {face_colors.shape}")
     native = plan is None
     if plan is None:
         # the plan of the JAX splat, used only where the native kernel is not (GPU):
@@ -164,7 +174,7 @@ def render(
 
     light = None if light_direction is None else tuple(float(x) for x in np.asarray(light_direction).ravel())
     return _render_jit(
-        mesh, cameras, plan, channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces),
+        mesh, cameras, plan, face_colors, channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces),
         light=light, ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native,
     )
 
@@ -206,13 +216,13 @@ def _splat_native(fs: Faces, cfg: SplatConfig):
     jax.jit,
     static_argnames=("channels", "sigma", "gamma", "znear", "cull", "light", "ambient", "bg", "return_info", "native"),
 )
-def _render_jit(mesh, cameras, plan, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info, native):
+def _render_jit(mesh, cameras, plan, face_colors, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info, native):
     bg = dict(bg)
-    attrs = tuple(c for c in ("normal", "shaded") if c in channels)
+    attrs = tuple(c for c in ("normal", "shaded", "color") if c in channels)
     want_depth = "depth" in channels
     fs = face_setup(
         mesh, cameras, sigma=sigma, znear=znear, cull=cull, attrs=attrs,
-        light=light, ambient=ambient,
+        light=light, ambient=ambient, face_colors=face_colors,
     )
     cfg = SplatConfig(
         height=cameras.height, width=cameras.width, windows=(), sigma=sigma, gamma=gamma,

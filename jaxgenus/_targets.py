@@ -6,14 +6,14 @@ the top. Their kind says what the channels mean:
 * `"silhouette"`: `(N, H, W)` or `(N, H, W, 1)`, the object's coverage (mask).
 * `"normals"`: `(N, H, W, 4)` RGBA with RGB = `(n + 1) / 2` of the world normal
   and A = coverage (what `render_targets` makes).
-* `"photo"`: `(N, H, W, 4)` RGBA photographs, A = the object's mask. Until
-  photometric fitting exists, photos are fitted by their masks only (the run's
-  verdict says so).
+* `"photo"`: `(N, H, W, 4)` RGBA photographs, A = the object's mask, fitted
+  through Lambertian shading with an unknown albedo and lighting (`_shading`).
 
 For RGBA images the kind is inferred when not given (`infer_targets`: normal maps
 are told from photos by the unit length of `2 RGB - 1`). The visual hull needs
 only the silhouettes (`Targets.alpha`); the optimizer fits `Targets.fit` (alpha
-alone, or RGBA normal images).
+alone, RGBA normal images, or photos with their colour premultiplied by A, as the
+renderer composites its colour over black).
 """
 
 from __future__ import annotations
@@ -37,7 +37,8 @@ class Targets(NamedTuple):
         kind: one of `TARGET_KINDS`.
         alpha: `(N, H, W)` coverage in [0, 1].
         normals: `(N, H, W, 3)` world normals in [-1, 1] (`"normals"` targets), else None.
-        fit: the array the optimizer fits: `(N, H, W, 1)` alpha, or `(N, H, W, 4)` RGBA normal images.
+        fit: the array the optimizer fits: `(N, H, W, 1)` alpha, `(N, H, W, 4)` RGBA normal
+            images, or `(N, H, W, 4)` photos premultiplied by their alpha.
         inferred: the kind was inferred (not given).
     """
 
@@ -90,4 +91,6 @@ def check_targets(images, cams: Cameras, kind: str | None = None) -> Targets:
     kind = infer_targets(img) if inferred else kind
     if kind == "normals":
         return Targets("normals", alpha, img[..., :3] * 2.0 - 1.0, img, inferred)
+    if kind == "photo":
+        return Targets("photo", alpha, None, np.concatenate([img[..., :3] * img[..., 3:], img[..., 3:]], -1), inferred)
     return Targets(kind, alpha, None, img[..., 3:], inferred)

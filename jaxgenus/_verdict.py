@@ -16,9 +16,15 @@ A run is **not ok** (`ok = False`) when any of these holds, each with a warning:
 * the result matches its silhouettes worse than the start did (mean IoU lower
   by more than 0.01).
 
+* photo targets: the median over the views of the photometric error (mean
+  absolute RGB difference of the result's render, with its albedo and lighting,
+  against the photo where both cover the pixel) is above `max_photo_error`: the
+  shading model does not explain the photos.
+
 Warnings that do not make a run fail: faces inverted at the last step, faces
 the rasterizer dropped or truncated, remeshes that hit the face budget (the mesh
-is coarser than asked), photo targets fitted by their masks only.
+is coarser than asked), photo views whose error is far above the others'
+(a change of exposure or light between views?).
 """
 
 from __future__ import annotations
@@ -30,9 +36,10 @@ import numpy as np
 from jaxgenus._cameras import Cameras
 from jaxgenus._mesh import Mesh
 from jaxgenus._render import render
+from jaxgenus._shading import render_photo
 from jaxgenus._targets import Targets
 
-__all__ = ["Verdict", "judge", "silhouette_ious"]
+__all__ = ["Verdict", "judge", "photo_errors", "silhouette_ious"]
 
 
 class Verdict(NamedTuple):
@@ -43,6 +50,7 @@ class Verdict(NamedTuple):
     normal_error_deg: list[float] | None
     ok: bool
     warnings: list[str]
+    photo_error: list[float] | None = None
 
 
 def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None):
@@ -67,9 +75,22 @@ def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: floa
     return iou.tolist(), err
 
 
+def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float) -> list[float]:
+    """Per view, the mean absolute RGB difference between `render_photo` and `photos (N, H, W, 4)`
+    (straight, not premultiplied) over the pixels both cover at alpha 0.5 (NaN where none)."""
+    img = np.asarray(render_photo(mesh, cams, albedo, lighting, sigma=sigma), np.float64)
+    both = (img[..., 3] >= 0.5) & (np.asarray(photos)[..., 3] >= 0.5)
+    rgb = img[..., :3] / np.maximum(img[..., 3:], 1e-6)
+    err = np.abs(rgb - np.asarray(photos, np.float64)[..., :3]).mean(axis=-1)
+    return [float(err[i][both[i]].mean()) if both[i].any() else float("nan") for i in range(len(err))]
+
+
 def judge(result: Mesh, start: Mesh, cams: Cameras, targets: Targets, steps: dict, cycles, *, genus_ok: bool,
-          sigma: float, min_iou: float, outlier_gap: float, photo: bool = False) -> Verdict:
-    """Score `result` and `start` (canonical frame, with `cams` in it) against `targets` and decide."""
+          sigma: float, min_iou: float, outlier_gap: float, appearance=None, photos=None,
+          max_photo_error: float = 0.1) -> Verdict:
+    """Score `result` and `start` (canonical frame, with `cams` in it) against `targets` and decide.
+
+    Photo targets: `appearance = (albedo, lighting)` of the result and the straight RGBA `photos`."""
     iou, nerr = silhouette_ious(result, cams, targets.alpha, sigma=sigma, normals=targets.normals)
     start_iou, _ = silhouette_ious(start, cams, targets.alpha, sigma=sigma)
     fail, warn = [], []
@@ -103,6 +124,15 @@ def judge(result: Mesh, start: Mesh, cams: Cameras, targets: Targets, steps: dic
     if hits:
         warn.append(f"remeshes after cycles {hits} hit the face budget (edges longer than the images resolve; "
                     "raise max_faces for more detail)")
-    if photo:
-        warn.append("photo targets: fitted by their masks only (photometric fitting is not implemented yet)")
-    return Verdict(iou, start_iou, nerr, not fail, fail + warn)
+    perr = None
+    if appearance is not None:
+        perr = photo_errors(result, cams, photos, *appearance, sigma=sigma)
+        med = float(np.nanmedian(perr))
+        if not med <= max_photo_error:
+            fail.append(f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian "
+                        "shading under one distant light does not explain the photos")
+        odd = [i for i, e in enumerate(perr) if e > 2.0 * med + 0.02]
+        if odd:
+            warn.append(f"photo views {odd} fit far worse than the rest (error {', '.join(f'{perr[i]:.3f}' for i in odd)}"
+                        f" against a median of {med:.3f}): exposure or lighting changed between views?")
+    return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr)

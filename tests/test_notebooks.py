@@ -24,3 +24,7 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
         assert (tmp_path / "quickstart_result.obj").is_file()
         assert namespace["ours"].genus == namespace["genus"]
         assert namespace["base"].genus == 0
+    if path.name == "03_photometric.ipynb":
+        rec = namespace["photo"]
+        assert rec.genus == namespace["genus"] and rec.albedo.shape == (len(rec.mesh.to_numpy()[0]), 3)
+        assert (tmp_path / "photometric_result.ply").is_file()
