@@ -37,7 +37,8 @@ from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus._plan import RasterPlan, plan_render, static_plan
 from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
-from jaxgenus._shading import LIGHTING_SHAPE, directional_lighting, face_colors, irradiance, render_photo
+from jaxgenus._shading import (LIGHTING_SHAPE, LIGHTING_SHAPES, directional_lighting, face_colors, irradiance,
+                               lighting_model, render_photo)
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
 from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
 from jaxgenus._largesteps import (
@@ -75,6 +76,7 @@ __all__ = [
     "GradientTransformation",
     "History",
     "LIGHTING_SHAPE",
+    "LIGHTING_SHAPES",
     "LoadedImages",
     "LossWeights",
     "Mesh",
@@ -117,6 +119,7 @@ __all__ = [
     "is_closed_manifold",
     "lambda_from_alpha",
     "largesteps_solve",
+    "lighting_model",
     "load_cameras",
     "load_images",
     "load_mesh",

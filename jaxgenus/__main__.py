@@ -116,6 +116,8 @@ def _options(args):
         change["coarse_resolution"] = args.coarse_resolution
     if args.crop is not None:
         change["crop"] = args.crop
+    if args.lighting is not None:
+        change["lighting"] = args.lighting
     return dataclasses.replace(opts, **change)
 
 
@@ -211,6 +213,9 @@ def main(argv=None) -> int:
     r.add_argument("--targets", choices=["silhouette", "normals", "photo"],
                    help="what RGB images hold (default: inferred); photos are fitted through Lambertian shading "
                         "with an estimated albedo (written as vertex colours, and exactly in OUT.albedo.npy) and light")
+    r.add_argument("--lighting", choices=["sh", "directional"], default=None,
+                   help="photo targets: the lighting model, spherical harmonics (default; any smooth light) or one "
+                        "lamp plus ambient (exact for a single lamp)")
     r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")

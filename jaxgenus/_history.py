@@ -98,7 +98,7 @@ class History(_Readable):
             where both cover the pixel (normal targets only, else None).
         photo_error: per view, the mean absolute RGB error of the result's render
             (albedo and lighting) against the photo where both cover (photo targets only).
-        lighting: the estimated `(3, 24)` lighting as nested lists (photo targets only;
+        lighting: the estimated `(3, 24)` or `(3, 3)` lighting as nested lists (photo targets only;
             see `jaxgenus.render_photo` for its convention).
         resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
             downsampled by `factor` to `size = (height, width)`, through random

@@ -161,7 +161,7 @@ def objective(
     (default `jaxgenus.render`) for the channels `target` has, and returns
     `(total, terms)` where `terms` holds the weighted `alpha`, `normal`,
     `bilaplacian` and `inversion` values that were computed (weight 0: absent).
-    `appearance=(albedo (Vcap, 3), lighting (3, 24))`: `target` is a photo, fitted
+    `appearance=(albedo (Vcap, 3), lighting (3, 24) or (3, 3))`: `target` is a photo, fitted
     through Lambertian face colours (`photo` and `albedo_smoothness` terms).
     """
     renderer = render if renderer is None else renderer

@@ -36,7 +36,7 @@ from jaxgenus._loss import LossWeights, objective, render_channels
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import uniform_laplacian
 from jaxgenus._pyramid import crop_views, target_boxes
-from jaxgenus._shading import LIGHTING_SHAPE
+from jaxgenus._shading import LIGHTING_SHAPE, lighting_model
 
 __all__ = [
     "Appearance",
@@ -152,12 +152,12 @@ class Appearance(eqx.Module):
 
     Attributes:
         albedo: `(Vcap, 3)` per-vertex RGB albedo (>= 0), row for row with the mesh's vertices.
-        lighting: `(3, 24)` spherical-harmonic lighting (module doc of `_shading`).
+        lighting: `(3, 24)` spherical-harmonic or `(3, 3)` directional lighting (`_shading`).
         adam: plain-Adam state of `(albedo, lighting)`.
     """
 
     albedo: Float[Array, "V 3"]
-    lighting: Float[Array, "3 24"]
+    lighting: Float[Array, "3 L"]
     adam: UniformAdamState
 
 
@@ -185,7 +185,8 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting
     """A fresh state at a copy of `mesh` (zero moments, rest shape = current shape).
 
     `albedo` (an RGB triple, or `(Vcap, 3)` per vertex) starts a photometric fit
-    (`Appearance`), with `lighting` `(3, 24)` (default zeros: uniform white light).
+    (`Appearance`), with `lighting` `(3, 24)` or `(3, 3)` (`jaxgenus.lighting_model`;
+    default `(3, 24)` zeros: uniform white light).
     The state owns its buffers, so donating it to `optimize_block` leaves `mesh` intact.
     """
     if not isinstance(mesh, Mesh):
@@ -199,8 +200,9 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting
             raise ValueError(f"albedo must be finite, >= 0, an RGB triple or ({mesh.vertex_capacity}, 3); got shape {a.shape}")
         a = jnp.where(mesh.vertex_mask[:, None], a, 0.0)
         lt = jnp.zeros(LIGHTING_SHAPE, dtype) if lighting is None else jnp.asarray(lighting, dtype)
-        if lt.shape != LIGHTING_SHAPE or not bool(jnp.all(jnp.isfinite(lt))):
-            raise ValueError(f"lighting must be finite with shape {LIGHTING_SHAPE}, got {lt.shape}")
+        lighting_model(lt)
+        if not bool(jnp.all(jnp.isfinite(lt))):
+            raise ValueError("lighting must be finite")
         appearance = Appearance(albedo=jnp.array(a), lighting=jnp.array(lt), adam=plain_adam(1.0).init((a, lt)))
     return OptimizerState(
         mesh=jax.tree.map(jnp.array, mesh),

@@ -52,6 +52,9 @@ class ReconstructOptions:
             target, both at alpha 0.5) is under this in any view is not ok.
         outlier_gap: the verdict's test of views that disagree with the rest: a view
             whose IoU is this far under the median of the views makes the run not ok.
+        lighting: photo targets: the lighting model, `"sh"` (spherical harmonics of
+            order <= 4: any smooth distant light) or `"directional"` (one lamp plus
+            ambient, exact); `jaxgenus.irradiance`, docs/photometric.md.
         albedo_learning_rate, lighting_learning_rate: photo targets: plain-Adam steps
             of the per-vertex albedo and of the lighting (scaled by `lr_decay ** cycle`).
         max_photo_error: photo targets: the verdict fails when the median over the views
@@ -104,6 +107,7 @@ class ReconstructOptions:
     max_photo_error: float = 0.1
     albedo_learning_rate: float = 1e-2
     lighting_learning_rate: float = 5e-2
+    lighting: str = "sh"
 
     def __post_init__(self):
         for name in ("coarse_resolution", "native_cycles", "crop"):
@@ -125,6 +129,8 @@ class ReconstructOptions:
             raise ValueError(f"options.average must be in [0, 1), got {self.average!r}")
         if not (isinstance(self.adam_quantile, (int, float)) and 0.0 < self.adam_quantile <= 1.0):
             raise ValueError(f"options.adam_quantile must be in (0, 1], got {self.adam_quantile!r}")
+        if self.lighting not in ("sh", "directional"):
+            raise ValueError(f"options.lighting must be 'sh' or 'directional', got {self.lighting!r}")
         if self.start not in ("auto", "primitive", "sphere"):
             raise ValueError(f"options.start must be 'auto', 'primitive' or 'sphere', got {self.start!r}")
         if not all(isinstance(r, int) and r >= 8 for r in self.hull_resolutions):

@@ -40,7 +40,7 @@ from jaxgenus._optimize import init_optimizer_state
 from jaxgenus._pyramid import pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions
-from jaxgenus._shading import render_photo
+from jaxgenus._shading import LIGHTING_SHAPES, render_photo
 from jaxgenus._start import HullTable, estimate_genus, start_mesh
 from jaxgenus._targets import check_targets
 from jaxgenus._verdict import judge
@@ -75,7 +75,8 @@ class Reconstruction:
 
     @property
     def lighting(self) -> np.ndarray | None:
-        """Photo targets: the estimated `(3, 24)` lighting (`history["lighting"]`), else None."""
+        """Photo targets: the estimated lighting (`history["lighting"]`: `(3, 24)` harmonics or `(3, 3)`
+        directional, `options.lighting`), else None."""
         lt = self.history.lighting
         return None if lt is None else np.asarray(lt, np.float32)
 
@@ -203,7 +204,8 @@ def reconstruct(
         + (f", {start.tunnels} handles drilled (the silhouettes show fewer)" if start.tunnels else "")
         + f" ({time.perf_counter() - t0:.1f}s)")
     photo = tg.kind == "photo"
-    state = init_optimizer_state(start.mesh, key, albedo=_initial_albedo(tg) if photo else None)
+    state = init_optimizer_state(start.mesh, key, albedo=_initial_albedo(tg) if photo else None,
+                                 lighting=np.zeros(LIGHTING_SHAPES[options.lighting], np.float32) if photo else None)
     remesh_options = RemeshOptions(adaptive=options.adaptive, iterations=3)
     factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
                                  options.native_cycles)

@@ -18,6 +18,17 @@ light's colour and overall strength: under a light whose mean irradiance is `m`,
 the recovered albedo is `m` times the true one (`directional_lighting` gives `m`
 for a directional light plus ambient).
 
+**Two lighting models**, told apart by the array's shape (`LIGHTING_SHAPES`):
+
+- `"sh"`, `(3, 24)`: the harmonics above. Any smooth distant lighting (sky,
+  several lamps), but a single lamp's shadow line is rounded off and its
+  attached shadow ripples.
+- `"directional"`, `(3, 3)`: one distant lamp plus ambient per channel, exact:
+  row `d` gives `E(n) = (1 - |d| / 4) + max(0, n . d)` (the ambient follows from
+  the mean being 1; `|d| / 4` is the mean of the lamp term). Zeros again are a
+  uniform white light. In attached shadow `E` does not depend on `n`, so shadowed
+  pixels pull on no normal.
+
 Shading is flat per face: a face's colour is the mean albedo of its corners
 times `max(0, E(face normal))`; the renderer's `"color"` channel blends these
 like the normals.
@@ -33,10 +44,22 @@ from jaxgenus._mesh import Mesh
 from jaxgenus._operators import face_normals
 from jaxgenus._render import render
 
-__all__ = ["LIGHTING_SHAPE", "directional_lighting", "face_colors", "irradiance", "render_photo"]
+__all__ = ["LIGHTING_SHAPE", "LIGHTING_SHAPES", "directional_lighting", "face_colors", "irradiance", "lighting_model",
+           "render_photo"]
 
 #: Shape of a `lighting`: 24 coefficients (the non-constant harmonics of order 1 to 4) per RGB channel.
 LIGHTING_SHAPE = (3, 24)
+#: The lighting models by name and the shape of their arrays (module doc).
+LIGHTING_SHAPES = {"sh": LIGHTING_SHAPE, "directional": (3, 3)}
+
+
+def lighting_model(lighting) -> str:
+    """The name of the lighting model (`"sh"` or `"directional"`) of a `lighting` array, from its shape."""
+    shape = tuple(np.shape(lighting))
+    for name, s in LIGHTING_SHAPES.items():
+        if shape == s:
+            return name
+    raise ValueError(f"lighting must have shape {LIGHTING_SHAPE} (spherical harmonics) or (3, 3) (directional), got {shape}")
 
 
 def _basis(n):
@@ -54,13 +77,18 @@ def _basis(n):
     ], axis=-1)
 
 
-def irradiance(normals: Float[Array, "... 3"], lighting: Float[Array, "3 24"]) -> Float[Array, "... 3"]:
-    """`E(n) = 1 + b(n) @ lighting.T` per RGB channel for unit `normals` (see the module doc)."""
+def irradiance(normals: Float[Array, "... 3"], lighting: Float[Array, "3 L"]) -> Float[Array, "... 3"]:
+    """Irradiance per RGB channel at unit `normals`, mean 1 over the sphere (module doc).
+
+    `lighting` `(3, 24)`: `1 + b(n) @ lighting.T`; `(3, 3)`: `1 - |d| / 4 + max(0, n . d)` per row `d`.
+    """
     lighting = jnp.asarray(lighting)
-    if lighting.shape != LIGHTING_SHAPE:
-        raise ValueError(f"lighting must have shape {LIGHTING_SHAPE}, got {lighting.shape}")
     n = jnp.asarray(normals)
-    return 1.0 + _basis(n) @ lighting.T.astype(n.dtype)
+    lt = lighting.astype(n.dtype)
+    if lighting_model(lighting) == "sh":
+        return 1.0 + _basis(n) @ lt.T
+    strength = jnp.sqrt(jnp.sum(lt * lt, axis=1) + 1e-20)  # smooth at zero: no NaN gradient at the start
+    return 1.0 - 0.25 * strength + jnp.maximum(n @ lt.T, 0.0)
 
 
 def _sphere_points(count: int) -> np.ndarray:
@@ -72,13 +100,14 @@ def _sphere_points(count: int) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def directional_lighting(direction, ambient: float) -> tuple[np.ndarray, float]:
-    """The `lighting` closest to `ambient + (1 - ambient) max(0, n . l)` (white), and its mean `m`.
+def directional_lighting(direction, ambient: float, model: str = "sh") -> tuple[np.ndarray, float]:
+    """The `lighting` of `ambient + (1 - ambient) max(0, n . l)` (white), and its mean `m`.
 
-    `l` is the unit `direction` (world, towards the light). The light divided by
-    its mean over the sphere, `m = ambient + (1 - ambient) / 4`, is projected onto
-    the basis by least squares over 20k nearly uniform directions (the order <= 4
-    truncation: rms error 0.03, worst 0.10 of the mean, at the shadow line).
+    `l` is the unit `direction` (world, towards the light). The light is divided by
+    its mean over the sphere, `m = ambient + (1 - ambient) / 4`. `model="directional"`
+    gives it exactly (`(3, 3)`); `"sh"` projects it onto the harmonics by least squares
+    over 20k nearly uniform directions (the order <= 4 truncation: rms error 0.03,
+    worst 0.10 of the mean, at the shadow line).
     A true albedo `rho` is recovered as `m * rho` under this library's convention.
     """
     d = np.asarray(direction, np.float64)
@@ -87,14 +116,18 @@ def directional_lighting(direction, ambient: float) -> tuple[np.ndarray, float]:
     a = float(ambient)
     if not 0.0 <= a <= 1.0:
         raise ValueError(f"ambient must be in [0, 1], got {ambient}")
+    if model not in LIGHTING_SHAPES:
+        raise ValueError(f"model must be one of {sorted(LIGHTING_SHAPES)}, got {model!r}")
     m = a + (1.0 - a) / 4.0
+    if model == "directional":
+        return np.tile((1.0 - a) / m * d / np.linalg.norm(d), (3, 1)), m
     n = _sphere_points(20000)
     exact = (a + (1.0 - a) * np.maximum(n @ (d / np.linalg.norm(d)), 0.0)) / m - 1.0
     row = np.linalg.lstsq(np.asarray(_basis(jnp.asarray(n)), np.float64), exact, rcond=None)[0]
     return np.tile(row, (3, 1)), m
 
 
-def face_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, "3 24"]) -> Float[Array, "F 3"]:
+def face_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, "3 L"]) -> Float[Array, "F 3"]:
     """Per-face RGB: the mean albedo of the face's corners times `max(0, E(face normal))`."""
     albedo = jnp.asarray(albedo)
     if albedo.shape != (mesh.vertex_capacity, 3):
@@ -104,7 +137,7 @@ def face_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, 
 
 
 def render_photo(mesh: Mesh, cameras, albedo, lighting, **render_kwargs) -> Float[Array, "N H W 4"]:
-    """RGBA photos of `mesh` with per-vertex `albedo (Vcap, 3)` under `lighting (3, 24)`.
+    """RGBA photos of `mesh` with per-vertex `albedo (Vcap, 3)` under `lighting` (`(3, 24)` or `(3, 3)`).
 
     RGB is the blended face colour composited over black with the coverage, A the
     coverage (the renderer's `"color"` and `"alpha"` channels). `render_kwargs`

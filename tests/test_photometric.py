@@ -28,7 +28,7 @@ def _sphere_points(n=40000):
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
-def test_lighting_convention_mean_one_and_directional_light_close_to_exact():
+def test_lighting_convention_mean_one_and_sh_of_a_directional_light_close_to_exact():
     n = _sphere_points()
     rng = np.random.default_rng(0)
     lighting = rng.normal(size=jg.LIGHTING_SHAPE)
@@ -44,6 +44,32 @@ def test_lighting_convention_mean_one_and_directional_light_close_to_exact():
     assert np.abs(approx - exact[:, None]).max() < 0.17
     with pytest.raises(ValueError, match="lighting"):
         jg.irradiance(jnp.zeros((4, 3)), jnp.zeros((3, 9)))
+
+
+def test_directional_model_is_exact_for_one_lamp_plus_ambient():
+    """The `(3, 3)` model reproduces `ambient + (1 - ambient) max(0, n . l)` divided by its mean,
+    to rounding, per channel (three different lamps); zeros are uniform white light."""
+    n = _sphere_points()
+    lamps = [((0.4, 0.8, 0.45), 0.25), ((0.0, 0.0, -1.0), 0.0), ((-1.0, 0.2, 0.1), 0.9)]
+    rows = []
+    for d, a in lamps:
+        lt, m = jg.directional_lighting(d, a, model="directional")
+        assert lt.shape == (3, 3) and jg.lighting_model(lt) == "directional"
+        rows.append(lt[0])
+        exact = (a + (1 - a) * np.maximum(n @ (np.asarray(d) / np.linalg.norm(d)), 0.0)) / m
+        got = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(lt)))
+        assert np.abs(got - exact[:, None]).max() < 1e-5 and abs(got.mean() - 1.0) < 1e-3
+    mixed = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(np.stack(rows))))  # one lamp per channel
+    for c, (d, a) in enumerate(lamps):
+        _, m = jg.directional_lighting(d, a)
+        exact = (a + (1 - a) * np.maximum(n @ (np.asarray(d) / np.linalg.norm(d)), 0.0)) / m
+        assert np.abs(mixed[:, c] - exact).max() < 1e-5
+    assert np.allclose(np.asarray(jg.irradiance(jnp.asarray(n[:5]), jnp.zeros((3, 3)))), 1.0)
+    assert jg.lighting_model(np.zeros(jg.LIGHTING_SHAPE)) == "sh"
+    with pytest.raises(ValueError, match="model"):
+        jg.directional_lighting((0, 0, 1), 0.2, model="point")
+    with pytest.raises(ValueError, match="options.lighting"):
+        jg.ReconstructOptions(lighting="point")
 
 
 def test_render_photo_matches_shading_of_raycast_normals():
@@ -67,13 +93,14 @@ def test_render_photo_matches_shading_of_raycast_normals():
     assert np.median(err) < 1e-3 and np.quantile(err, 0.95) < 0.05
 
 
-def test_photo_loss_gradient_matches_central_differences():
+@pytest.mark.parametrize("model", ["sh", "directional"])
+def test_photo_loss_gradient_matches_central_differences(model):
     jax.config.update("jax_enable_x64", True)
     try:
         mesh = jg.builtin_scene("torus")
         mesh = jg.Mesh(mesh.vertices.astype(jnp.float64), mesh.faces, mesh.n_vertices, mesh.n_faces)
         cams = jg.sphere_cameras(3, radius=3.0, resolution=32)
-        lt, _ = jg.directional_lighting((0.3, -0.5, 0.8), 0.3)
+        lt, _ = jg.directional_lighting((0.3, -0.5, 0.8), 0.3, model=model)
         rng = np.random.default_rng(1)
         v = np.asarray(mesh.vertices)
         albedo = jnp.asarray(0.5 + 0.2 * np.sin(3.0 * v), jnp.float64)
@@ -195,3 +222,22 @@ def test_photometric_steps_stay_finite_on_extreme_photos(case):
     assert np.all(np.isfinite(np.asarray(state.mesh.vertices))) and np.all(np.isfinite(np.asarray(state.appearance.albedo)))
     photo = np.asarray(rec["photo"])
     assert photo[-5:].mean() < photo[:5].mean()
+
+
+def test_directional_lighting_is_estimated_from_raycast_photos():
+    """The `(3, 3)` model, started at uniform white light on the true torus, turns to the lamp of
+    ray-cast photos (smooth shading, not this library's flat faces) and fits them."""
+    gt = jg.builtin_scene("torus")
+    cams = jg.sphere_cameras(8, radius=3.0, resolution=48)
+    light = np.array([0.3, 0.8, 0.5]) / np.linalg.norm([0.3, 0.8, 0.5])
+    photos = raycast_lambert(cams, gt, light_direction=light, ambient=0.25, albedo=(0.7, 0.6, 0.5))
+    fit = jnp.asarray(np.concatenate([photos[..., :3] * photos[..., 3:], photos[..., 3:]], -1))
+    start = jg.Mesh.from_numpy(*(np.asarray(x) for x in gt.to_numpy()))
+    state = jg.init_optimizer_state(start, jax.random.key(0), albedo=(0.5, 0.5, 0.5), lighting=np.zeros((3, 3)))
+    state, rec = jg.optimize_block(state, cams, fit, n_steps=80, options=jg.OptimizeOptions(learning_rate=1e-3))
+    lt = np.asarray(state.appearance.lighting)
+    assert lt.shape == (3, 3)
+    cos = lt @ light / np.linalg.norm(lt, axis=1)
+    assert np.all(cos > 0.95), cos
+    photo = np.asarray(rec["photo"])
+    assert photo[-5:].mean() < 0.5 * photo[:5].mean()
