@@ -35,6 +35,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from _report import publish, pyplot
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
@@ -127,14 +128,9 @@ def write_report(rows, out: Path):
                      f"{'yes' if r['genus'] == r['true_genus'] else 'NO'} | {alb} | {ratio} | {perr} | "
                      f"{r['seconds']:.0f} | {'ok' if r['ok'] else 'NOT OK'} |")
     text = "\n".join(lines + [""] + _bar(rows)) + "\n"
-    (out / "photometric_benchmark.md").write_text(text)
-    print(text)
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    publish(out / "photometric_benchmark.md", text)
+    plt = pyplot()
+    if plt is None:
         return
     shapes = sorted({r["shape"] for r in rows})
     fig, ax = plt.subplots(1, len(shapes), figsize=(5 * len(shapes), 3.6), squeeze=False)

@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 import jaxgenus as jg
+from _report import publish, pyplot
 
 
 def shared_dir() -> Path | None:
@@ -173,15 +174,10 @@ def write_report(rows, args, out: Path):
         f"| {r['genus']} | {r['cd_l1']:.4f} "
         f"| {ratio(r)} | {r['cd_l2']:.2e} | {r['iou']:.3f} | {r['faces']} | {r['seconds']:.0f} | {_verdict(r)} |\n"
         for r in rows)
-    print(table)
-    (out / "reconstruction_benchmark.md").write_text(table)
+    publish(out / "reconstruction_benchmark.md", table)
     (out / "reconstruction_benchmark.json").write_text(json.dumps(rows, default=float))
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    plt = pyplot()
+    if plt is None:
         return
     fig, ax = plt.subplots(1, 3, figsize=(17, 5))
     shapes = list(dict.fromkeys(r["shape"] for r in rows))

@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _report import publish, pyplot
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "tests"))
@@ -110,14 +111,9 @@ def write_report(rows, out: Path):
             f"{r['peak_rss_gb']:.2f} |"
         )
     table = "\n".join(lines) + "\n"
-    (out / "resolution_benchmark.md").write_text(table)
-    print(table)
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:
+    publish(out / "resolution_benchmark.md", table)
+    plt = pyplot()
+    if plt is None:
         return
     fig, ax = plt.subplots(1, 3, figsize=(14, 4))
     for shape in sorted({r["shape"] for r in rows}):

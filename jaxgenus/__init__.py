@@ -37,6 +37,7 @@ from jaxgenus import metrics
 from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus._plan import RasterPlan, plan_render, static_plan
 from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
+from jaxgenus._handles import HandleCandidate, handle_candidates, normal_image_loss, open_handles
 from jaxgenus._shading import (LIGHTING_SHAPE, LIGHTING_SHAPES, directional_lighting, face_colors, irradiance,
                                lighting_model, render_photo)
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
@@ -74,6 +75,7 @@ __all__ = [
     "Cameras",
     "CycleRecord",
     "GradientTransformation",
+    "HandleCandidate",
     "History",
     "LIGHTING_SHAPE",
     "LIGHTING_SHAPES",
@@ -111,6 +113,7 @@ __all__ = [
     "face_normals",
     "from_differential",
     "genus",
+    "handle_candidates",
     "genus_primitive",
     "image_loss",
     "irradiance",
@@ -126,7 +129,9 @@ __all__ = [
     "look_at",
     "mesh_report",
     "metrics",
+    "normal_image_loss",
     "objective",
+    "open_handles",
     "optimize_block",
     "pair_images",
     "plan_render",

@@ -118,6 +118,8 @@ def _options(args):
         change["crop"] = args.crop
     if args.lighting is not None:
         change["lighting"] = args.lighting
+    if args.hidden_handles is not None:
+        change["hidden_handles"] = args.hidden_handles
     return dataclasses.replace(opts, **change)
 
 
@@ -216,6 +218,9 @@ def main(argv=None) -> int:
     r.add_argument("--lighting", choices=["sh", "directional"], default=None,
                    help="photo targets: the lighting model, spherical harmonics (default; any smooth light) or one "
                         "lamp plus ambient (exact for a single lamp)")
+    r.add_argument("--hidden-handles", choices=["images", "drill"], default=None,
+                   help="handles the silhouettes do not show: open them where the normal images show holes "
+                        "(default), or drill small tunnels at spread-out sites")
     r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")

@@ -103,6 +103,10 @@ class History(_Readable):
         resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
             downsampled by `factor` to `size = (height, width)`, through random
             `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`).
+        handles: per handle of the start, where it came from: `{"source": "hull"}` (the
+            visual hull has it), `{"source": "images", "centre", "radius", ...}` (opened
+            where the images show a hole; centre and radius in user units) or
+            `{"source": "drilled"}` (a small tunnel at a spread-out site).
         ok: the result matches its images (see `jaxgenus._verdict`); warnings: why not,
             and what else to know.
     """
@@ -127,6 +131,7 @@ class History(_Readable):
     photo_error: list[float] | None = None
     lighting: list | None = None
     resolution: list[dict] = dataclasses.field(default_factory=list)
+    handles: list[dict] = dataclasses.field(default_factory=list)
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)
 

@@ -181,13 +181,20 @@ class OptimizerState(eqx.Module):
     appearance: Appearance | None = None
 
 
+def _owned_key(key):
+    """A copy of `key` (typed or raw uint32), so that donating a state leaves the caller's key alive."""
+    if jnp.issubdtype(jnp.asarray(key).dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(jnp.array(jax.random.key_data(key)), impl=jax.random.key_impl(key))
+    return jnp.array(key)
+
+
 def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting=None) -> OptimizerState:
     """A fresh state at a copy of `mesh` (zero moments, rest shape = current shape).
 
     `albedo` (an RGB triple, or `(Vcap, 3)` per vertex) starts a photometric fit
     (`Appearance`), with `lighting` `(3, 24)` or `(3, 3)` (`jaxgenus.lighting_model`;
     default `(3, 24)` zeros: uniform white light).
-    The state owns its buffers, so donating it to `optimize_block` leaves `mesh` intact.
+    The state owns its buffers, so donating it to `optimize_block` leaves `mesh` and `key` intact.
     """
     if not isinstance(mesh, Mesh):
         raise ValueError(f"mesh must be a Mesh, got {type(mesh).__name__}")
@@ -209,7 +216,7 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting
         adam=uniform_adam(1.0).init(mesh.vertices),
         rest_vertices=jnp.array(mesh.vertices),
         step=jnp.zeros((), jnp.int32),
-        key=key,
+        key=_owned_key(key),
         appearance=appearance,
     )
 

@@ -55,6 +55,11 @@ class ReconstructOptions:
         lighting: photo targets: the lighting model, `"sh"` (spherical harmonics of
             order <= 4: any smooth distant light) or `"directional"` (one lamp plus
             ambient, exact); `jaxgenus.irradiance`, docs/photometric.md.
+        hidden_handles: handles the visual hull lacks (holes no silhouette shows):
+            `"images"` (normal targets) first fits the hull's genus, then opens holes
+            where that fit's normals disagree with the targets and the image loss drops
+            (`jaxgenus.open_handles`), drilling only what the images do not show; `"drill"`
+            drills them all as small tunnels at spread-out sites (`drill_tunnels`).
         albedo_learning_rate, lighting_learning_rate: photo targets: plain-Adam steps
             of the per-vertex albedo and of the lighting (scaled by `lr_decay ** cycle`).
         max_photo_error: photo targets: the verdict fails when the median over the views
@@ -108,6 +113,7 @@ class ReconstructOptions:
     albedo_learning_rate: float = 1e-2
     lighting_learning_rate: float = 5e-2
     lighting: str = "sh"
+    hidden_handles: str = "images"
 
     def __post_init__(self):
         for name in ("coarse_resolution", "native_cycles", "crop"):
@@ -129,6 +135,8 @@ class ReconstructOptions:
             raise ValueError(f"options.average must be in [0, 1), got {self.average!r}")
         if not (isinstance(self.adam_quantile, (int, float)) and 0.0 < self.adam_quantile <= 1.0):
             raise ValueError(f"options.adam_quantile must be in (0, 1], got {self.adam_quantile!r}")
+        if self.hidden_handles not in ("images", "drill"):
+            raise ValueError(f"options.hidden_handles must be 'images' or 'drill', got {self.hidden_handles!r}")
         if self.lighting not in ("sh", "directional"):
             raise ValueError(f"options.lighting must be 'sh' or 'directional', got {self.lighting!r}")
         if self.start not in ("auto", "primitive", "sphere"):

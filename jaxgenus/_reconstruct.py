@@ -33,6 +33,7 @@ import numpy as np
 from jaxgenus._cameras import Cameras
 from jaxgenus._cycles import cycle_compilations, run_one_jit, run_per_cycle
 from jaxgenus._frame import pixel_footprint, scene_frame
+from jaxgenus._handles import open_handles
 from jaxgenus._history import History
 from jaxgenus._hull import hull_thickness, visual_hull_bounds
 from jaxgenus._mesh import Mesh
@@ -41,7 +42,7 @@ from jaxgenus._pyramid import pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus._options import ReconstructOptions
 from jaxgenus._remesh import RemeshOptions
 from jaxgenus._shading import LIGHTING_SHAPES, render_photo
-from jaxgenus._start import HullTable, estimate_genus, start_mesh
+from jaxgenus._start import HullTable, Start, drill_tunnels, estimate_genus, remeshed_start, start_mesh
 from jaxgenus._targets import check_targets
 from jaxgenus._verdict import judge
 from jaxgenus._topology import genus as mesh_genus, is_closed_manifold
@@ -107,6 +108,15 @@ def _estimate_warnings(estimate) -> list[str]:
             f"visual hulls: {found}): give the genus if you know it"]
 
 
+def _handle_warnings(handles: list[dict]) -> list[str]:
+    drilled = sum(h["source"] == "drilled" for h in handles)
+    if not drilled:
+        return []
+    return [f"{drilled} of {len(handles)} handles were drilled as small tunnels at spread-out sites: neither the "
+            "silhouettes nor the images showed where those holes are, so the genus is right but those handles "
+            "are probably not the object's own (history['handles'])"]
+
+
 def _levels(cams, tg, factors, crop):
     """`(cameras, targets, crop)` per cycle; crops only at the native level of a schedule."""
     built = {}
@@ -115,6 +125,44 @@ def _levels(cams, tg, factors, crop):
         level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
         built[f] = (scaled_cameras(cams, f), jnp.asarray(level), level_crop)
     return [built[f] for f in factors]
+
+
+def _handle_sources(start: Start, genus: int) -> list[dict]:
+    if start.kind in ("primitive", "sphere"):
+        return [{"source": start.kind} for _ in range(genus if start.kind == "primitive" else 0)]
+    return [{"source": "hull"} for _ in range(genus - start.tunnels)] + [{"source": "drilled"}] * start.tunnels
+
+
+def _image_handles(images, world_cams, cams, tg, genus, start, frame, edge, options, key):
+    """A start whose missing handles are opened where the images show holes (`_handles`):
+    fit the hull's genus first, open holes in that fit, drill what is still missing.
+    Returns `(start, handle records)`; the given start when that fails."""
+    have = genus - start.tunnels
+    pre = reconstruct(images, world_cams, have, targets=tg.kind,
+                      options=dataclasses.replace(options, hidden_handles="drill"), key=key)
+    v, f = pre.mesh.to_numpy()
+    v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
+    factor = 1
+    while max(cams.height, cams.width) / (2 * factor) >= 192:  # the evidence at about 256 px
+        factor *= 2
+    level = pyramid_level(tg.fit, factor, normals=True)
+    try:
+        v, f, opened = open_handles(v, f, scaled_cameras(cams, factor), level, start.tunnels)
+    except ValueError:  # the fit is not a manifold solid to cut: drill as before
+        opened = []
+    mesh = Mesh.from_numpy(np.asarray(v, np.float32), np.asarray(f, np.int32))
+    missing = start.tunnels - len(opened)
+    if missing:
+        mesh = drill_tunnels(mesh, missing, edge)
+    mesh = None if mesh is None else remeshed_start(mesh, genus, edge, options)
+    if mesh is None:
+        return start, _handle_sources(start, genus)
+    records = [{"source": "images", "centre": (np.asarray(r["centre"]) * frame.scale + frame.centre).tolist(),
+                "radius": r["radius"] * frame.scale, "depth": r["depth"] * frame.scale,
+                "loss_before": r["loss_before"], "loss_after": r["loss_after"]} for r in opened]
+    kind = "fit+images" + ("+tunnels" if missing else "")
+    return (Start(mesh, kind, start.hull_grid, missing),
+            [{"source": "hull"} for _ in range(have)] + records + [{"source": "drilled"}] * missing)
 
 
 def _initial_albedo(tg) -> np.ndarray:
@@ -200,6 +248,13 @@ def reconstruct(
     lengths = options.edge_lengths() if options.remesh else []
     first = lengths[0] if lengths else options.final_edge_length
     start = start_mesh(hulls, genus, (lo, hi), first * pixel, options)
+    handles = _handle_sources(start, genus)
+    if start.tunnels and tg.kind == "normals" and options.hidden_handles == "images":
+        say(f"hidden handles: the visual hull has {genus - start.tunnels} of {genus} handles; fitting that genus "
+            "to find the others in the images")
+        start, handles = _image_handles(images, world_cams, cams, tg, genus, start, frame, first * pixel, options, key)
+        say(f"hidden handles: {sum(h['source'] == 'images' for h in handles)} opened where the images show holes, "
+            f"{start.tunnels} drilled")
     say(f"start: {start.kind} of genus {genus}, {int(start.mesh.n_faces)} faces"
         + (f", {start.tunnels} handles drilled (the silhouettes show fewer)" if start.tunnels else "")
         + f" ({time.perf_counter() - t0:.1f}s)")
@@ -254,9 +309,10 @@ def reconstruct(
         normal_error_deg=verdict.normal_error_deg,
         photo_error=verdict.photo_error,
         lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(),
+        handles=handles,
         resolution=[{"factor": f, "size": [lv[0].height, lv[0].width], "crop": lv[2]} for f, lv in zip(factors, levels)],
         ok=verdict.ok,
-        warnings=verdict.warnings + _estimate_warnings(estimate),
+        warnings=verdict.warnings + _estimate_warnings(estimate) + _handle_warnings(handles),
     )
     mesh = frame.mesh_to_world(state.mesh)
     albedo = None if app is None else np.array(app.albedo[: int(state.mesh.n_vertices)], np.float32)

@@ -23,7 +23,7 @@ from jaxgenus._primitives import genus_primitive
 from jaxgenus._remesh import RemeshOptions, remesh
 from jaxgenus._topology import connected_components, euler_characteristic, genus as mesh_genus
 
-__all__ = ["HullTable", "Start", "drill_tunnels", "estimate_genus", "start_mesh"]
+__all__ = ["HullTable", "Start", "drill_tunnels", "estimate_genus", "remeshed_start", "start_mesh"]
 
 
 class Start(NamedTuple):
@@ -180,11 +180,7 @@ def _hull_start(hulls: HullTable, genus: int, target: float, options: Reconstruc
     """
 
     def remeshed(hull):
-        m, _ = remesh(hull, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.max_faces))
-        v, f = m.to_numpy()
-        if len(f) > options.max_faces or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
-            return None
-        return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces))
+        return remeshed_start(hull, genus, target, options)
 
     below = []  # (genus, order, hull, grid) of hulls with fewer handles than requested
     for closing in (0, 1, 2):
@@ -209,6 +205,16 @@ def _hull_start(hulls: HullTable, genus: int, target: float, options: Reconstruc
         if m is not None:
             return m, grid, genus + neg_g
     return None, None, 0
+
+
+def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOptions) -> Mesh | None:
+    """`mesh` remeshed to edge length `target` within `options.max_faces`, padded to its
+    capacity bucket; None unless the result is one closed piece of genus `genus`."""
+    m, _ = remesh(mesh, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.max_faces))
+    v, f = m.to_numpy()
+    if len(f) > options.max_faces or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+        return None
+    return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces))
 
 
 def _primitive_start(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:

@@ -3,7 +3,8 @@
 The evaluation protocol that combines them is described in docs/metrics.md.
 """
 
-from jaxgenus import _metrics
+from jaxgenus import _betti, _metrics
+from jaxgenus._betti import Betti, HandlePlacement, betti_numbers, handle_placement, voxelize
 from jaxgenus._metrics import (
     ChamferResult,
     ICPResult,
@@ -15,4 +16,4 @@ from jaxgenus._metrics import (
     volume_iou,
 )
 
-__all__ = list(_metrics.__all__)
+__all__ = list(_metrics.__all__) + list(_betti.__all__)

@@ -1,3 +1,4 @@
+import dataclasses
 import json
 
 import jax
@@ -109,10 +110,17 @@ def test_visual_hull_of_torus_contains_it_and_keeps_the_hole(torus_scene):
 
 def test_auto_start_drills_missing_handles_into_a_lower_genus_hull(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=4000)
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=4000,
+                                 hidden_handles="drill")
     rec = jg.reconstruct(img, cams, 3, options=opts)  # the hull has genus 1: 2 handles are added
     assert rec.history["start"] == "visual_hull+tunnels" and rec.history["tunnels"] == 2
+    assert [h["source"] for h in rec.history["handles"]] == ["hull", "drilled", "drilled"]
+    assert any("2 of 3 handles were drilled" in w for w in rec.history["warnings"])
     assert rec.genus == 3 and rec.genus_ok
+    # looking in the images first (the default) finds no hole there, and drills the same two
+    looked = jg.reconstruct(img, cams, 3, options=dataclasses.replace(opts, hidden_handles="images"))
+    assert looked.history["start"] == "fit+images+tunnels" and looked.genus == 3
+    assert [h["source"] for h in looked.history["handles"]] == ["hull", "drilled", "drilled"]
     # the small handles barely change the shape: still close to the torus
     al = jg.metrics.icp_align(rec.mesh, gt).vertices
     assert jg.metrics.volume_iou((al, rec.mesh.to_numpy()[1]), gt) > 0.7
@@ -148,8 +156,9 @@ def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
 def test_same_key_same_result(torus_scene):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=10, initial_faces=600, max_faces=1500)
-    a = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(7))
-    b = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(7))
+    key = jax.random.key(7)
+    a = jg.reconstruct(img, cams, 1, options=opts, key=key)
+    b = jg.reconstruct(img, cams, 1, options=opts, key=key)  # the caller's key is not consumed (donated)
     va, fa = a.mesh.to_numpy()
     vb, fb = b.mesh.to_numpy()
     np.testing.assert_array_equal(fa, fb)
