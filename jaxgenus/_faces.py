@@ -16,6 +16,7 @@ from jaxtyping import Array
 from jaxgenus._cameras import Cameras
 from jaxgenus._mesh import Mesh
 from jaxgenus._operators import face_normals
+from jaxgenus._projection import projected_faces
 from jaxgenus._splat import CUTOFF_LOG, DC
 
 __all__ = ["FACING_WIDTH", "Faces", "blur_radius", "check_inputs", "check_scalar", "face_setup", "facing_log_weight"]
@@ -91,17 +92,11 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
     pp = cameras.principal_point.astype(dtype)
     h, w = cameras.height, cameras.width
 
-    # gather the faces once, then transform per view: the backward then scatters
-    # (F, 3, 3) into the vertices once, not once per view (XLA CPU scatters are slow)
+    # gather the faces once; the per-view geometry has a hand-written VJP (_projection)
     tw = mesh.vertices[mesh.faces]
-    tri = jnp.einsum("nij,fkj->nfki", rot, tw) + trans[:, None, None, :]  # (N, F, 3, 3)
-    z = tri[..., 2]
-    front_ok = jnp.all(z > znear, axis=-1)
-    zs = jnp.where(z > znear, z, 1.0)  # double where: no x/z blow-up
-    uv = tri[..., :2] / zs[..., None] * focal[:, None, None, :] + pp[:, None, None, :]
-
-    valid = mesh.face_mask[None, :] & front_ok
-    in_front = valid  # depth normalization: every face in front of the camera (continuous)
+    pj = projected_faces(tw, rot, trans, focal, pp, mesh.face_mask, znear=znear)
+    uv = pj.uv
+    valid = mesh.face_mask[None, :] & pj.front
     if cull:
         logw = facing_log_weight(tw, rot, trans)
         valid = valid & (logw > -jnp.inf)
@@ -111,39 +106,20 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
     # window: pixel centres within the blur radius of the face's bbox, clipped to the image
     r = blur_radius(sigma)
     big = 4.0 * (h + w)
-    lo = jnp.clip(jnp.min(uv, axis=2) - r - 0.5, -big, big)
-    hi = jnp.clip(jnp.max(uv, axis=2) + r - 0.5, -big, big)
+    uvc = jax.lax.stop_gradient(uv)
+    lo = jnp.clip(jnp.min(uvc, axis=2) - r - 0.5, -big, big)
+    hi = jnp.clip(jnp.max(uvc, axis=2) + r - 0.5, -big, big)
     size = jnp.array([w, h], dtype)
     first = jnp.clip(jnp.ceil(lo), 0, size)
     last = jnp.clip(jnp.floor(hi), -1, size - 1)
     span = last - first + 1
     valid = valid & jnp.all(span > 0, axis=-1)
-    origin = jax.lax.stop_gradient(first).astype(jnp.int32)
-    extent = jnp.max(jax.lax.stop_gradient(span), axis=-1).astype(jnp.int32)
+    origin = first.astype(jnp.int32)
+    extent = jnp.max(span, axis=-1).astype(jnp.int32)
 
-    # normalized inverse depth q in [0, 1] over this view's visible vertices
-    zmin = jnp.min(jnp.where(in_front[..., None], z, jnp.inf), axis=(1, 2))
-    zmax = jnp.max(jnp.where(in_front[..., None], z, -jnp.inf), axis=(1, 2))
-    anyv = jnp.any(in_front, axis=1)
-    zmin = jnp.where(anyv, zmin, 1.0)
-    zmax = jnp.where(anyv, zmax, 1.0)
-    scale = jnp.maximum(1.0 / zmin - 1.0 / zmax, 1e-6 / zmin)
-    offset = 1.0 / zmax
-    q = (1.0 / zs - offset[:, None, None]) / scale[:, None, None]
-    q = jnp.where(valid[..., None], q, 0.0)
-
-    e1 = uv[:, :, 1] - uv[:, :, 0]
-    e2 = uv[:, :, 2] - uv[:, :, 0]
-    det = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]
-    ok = jnp.abs(det) > 1e-12
-    idet = jnp.where(ok, 1.0 / jnp.where(ok, det, 1.0), 0.0)
-    dq1 = q[..., 1] - q[..., 0]
-    dq2 = q[..., 2] - q[..., 0]
-    gx = (e2[..., 1] * dq1 - e1[..., 1] * dq2) * idet
-    gy = (e1[..., 0] * dq2 - e2[..., 0] * dq1) * idet
-    c = jnp.where(ok, q[..., 0] - gx * uv[:, :, 0, 0] - gy * uv[:, :, 0, 1], jnp.mean(q, axis=-1))
-    plane = jnp.stack([gx, gy, c], axis=-1)
-    qrange = jnp.stack([jnp.min(q, axis=-1), jnp.max(q, axis=-1)], axis=-1)
+    # faces dropped after the depth normalization (culled, off-image) get q = 0
+    plane = jnp.where(valid[..., None], pj.plane, 0.0)
+    qrange = jnp.where(valid[..., None], pj.qrange, 0.0)
 
     n_views, n_faces = valid.shape
     parts = []
@@ -163,6 +139,6 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
                 lam = jnp.maximum(jnp.einsum("fi,ni->nf", nrm, ldir), 0.0)
                 parts.append((ambient + (1.0 - ambient) * lam)[..., None])
     attr = jnp.concatenate(parts, axis=-1) if parts else jnp.zeros((n_views, n_faces, 0), dtype)
-    dconst = jnp.stack([scale, offset], axis=-1)
+    dconst = pj.dconst
     logw = jnp.where(valid, logw, 0.0)
     return Faces(uv, plane, qrange, attr, logw, valid, origin, extent, dconst)
