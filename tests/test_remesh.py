@@ -319,7 +319,7 @@ def test_vmap_and_grad():
 
 @pytest.mark.slow
 def test_native_core_under_sanitizers(tmp_path):
-    """Builds native/tests with ASan + UBSan and runs them (curvature, invalid input, random ops, kernel)."""
+    """Builds native/tests with ASan + UBSan and runs them (curvature, invalid input, random ops, remesh and raster kernels)."""
     if shutil.which("g++") is None:
         pytest.skip("g++ not available")
     probe = tmp_path / "probe.cc"
@@ -330,3 +330,4 @@ def test_native_core_under_sanitizers(tmp_path):
     res = subprocess.run(["bash", str(REPO / "native/tests/run_sanitizers.sh")], capture_output=True, text=True, env=env, timeout=900)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "OK (0 failures)" in res.stdout
+    assert "test_raster: all passed" in res.stdout

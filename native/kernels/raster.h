@@ -3,7 +3,8 @@
 // (tapered sigmoid coverage of the signed distance, depth-softmax blend with a
 // background, envelope-theorem gradients of the nearest edge), but without
 // windows or tiers: every valid face of a view is visited over the pixels of its
-// blurred footprint (a scanline span per row, clipped to the image).
+// blurred footprint (its whole box when that has at most 32 pixels, else a scanline
+// span per row), clipped to the image.
 //
 // Layouts (row-major, leading view axis of n_views):
 //   v (V, F, 3, 2) pixel coordinates, plane (V, F, 3) = (gx, gy, c) of the

@@ -88,52 +88,62 @@ bool make_face(const RasterFaces<T>& fs, int64_t view, int64_t f, int64_t n_attr
   return true;
 }
 
-// Geometry of a run of up to kChunk pixels of one row (structure of arrays,
-// branch-free: the nearest edge and the inside test are selects, not jumps):
-// nearest edge, its parameter and offset, squared distance, inside flag.
+// Geometry of up to kChunk pixels (a run of one row, or the whole bounding box of
+// a small face), structure of arrays: pixel index and centre, nearest edge, its
+// parameter and offset, squared distance, inside flag.
 inline constexpr int kChunk = 32;
 
 template <typename T>
 struct Chunk {
+  T px[kChunk], py[kChunk];
   T d2[kChunk], t[kChunk], dx[kChunk], dy[kChunk];
+  int64_t idx[kChunk];
   int32_t edge[kChunk], inside[kChunk];
 };
 
+// One edge's part of a pixel's geometry: clamped parameter, offset, squared distance.
 template <typename T>
-inline void chunk_geometry(const Face<T>& face, int64_t col0, int n, T py, Chunk<T>& c) {
+struct EdgeGeo {
+  T t, dx, dy, d2, side;
+};
+
+template <typename T>
+inline EdgeGeo<T> edge_geometry(T ax, T ay, T ex, T ey, T il, T px, T py) {
+  const T wx = px - ax, wy = py - ay;
+  const T t = std::min(std::max((wx * ex + wy * ey) * il, T(0)), T(1));
+  const T dx = wx - t * ex, dy = wy - t * ey;
+  return {t, dx, dy, dx * dx + dy * dy, ex * wy - ey * wx};
+}
+
+// Written with scalar selects only (no arrays indexed by edge, no branches) so the
+// compiler vectorizes the pixel loop (with -fno-trapping-math, see CMakeLists.txt).
+template <typename T>
+inline void chunk_geometry(const Face<T>& face, int n, Chunk<T>& c) {
   const Face<T> f = face;  // a local copy: the stores below cannot alias it
   for (int j = 0; j < n; ++j) {
-    const T px = T(col0 + j) + T(0.5);
-    T d2[3], ts[3], dxs[3], dys[3];
-    int32_t in = 1;
-    for (int i = 0; i < 3; ++i) {
-      const T wx = px - f.ax[i], wy = py - f.ay[i];
-      T t = (wx * f.ex[i] + wy * f.ey[i]) * f.il[i];
-      t = t < T(0) ? T(0) : t;
-      t = t > T(1) ? T(1) : t;
-      const T dx = wx - t * f.ex[i], dy = wy - t * f.ey[i];
-      ts[i] = t;
-      dxs[i] = dx;
-      dys[i] = dy;
-      d2[i] = dx * dx + dy * dy;
-      in &= int32_t((f.ex[i] * wy - f.ey[i] * wx) * f.sgn > T(0));
-    }
-    const T m12 = d2[1] < d2[2] ? d2[1] : d2[2];
-    const bool s0 = d2[0] <= m12, s1 = d2[1] <= d2[2];
-    c.d2[j] = s0 ? d2[0] : m12;
-    c.t[j] = s0 ? ts[0] : (s1 ? ts[1] : ts[2]);
-    c.dx[j] = s0 ? dxs[0] : (s1 ? dxs[1] : dxs[2]);
-    c.dy[j] = s0 ? dys[0] : (s1 ? dys[1] : dys[2]);
+    const T px = c.px[j], py = c.py[j];
+    const EdgeGeo<T> g0 = edge_geometry(f.ax[0], f.ay[0], f.ex[0], f.ey[0], f.il[0], px, py);
+    const EdgeGeo<T> g1 = edge_geometry(f.ax[1], f.ay[1], f.ex[1], f.ey[1], f.il[1], px, py);
+    const EdgeGeo<T> g2 = edge_geometry(f.ax[2], f.ay[2], f.ex[2], f.ey[2], f.il[2], px, py);
+    const bool s1 = g1.d2 <= g2.d2;
+    const T m12 = s1 ? g1.d2 : g2.d2;
+    const bool s0 = g0.d2 <= m12;
+    const T t12 = s1 ? g1.t : g2.t, dx12 = s1 ? g1.dx : g2.dx, dy12 = s1 ? g1.dy : g2.dy;
+    c.d2[j] = s0 ? g0.d2 : m12;
+    c.t[j] = s0 ? g0.t : t12;
+    c.dx[j] = s0 ? g0.dx : dx12;
+    c.dy[j] = s0 ? g0.dy : dy12;
     c.edge[j] = s0 ? 0 : (s1 ? 1 : 2);
-    c.inside[j] = in;
+    const bool in = (g0.side * f.sgn > T(0)) & (g1.side * f.sgn > T(0)) & (g2.side * f.sgn > T(0));
+    c.inside[j] = in ? 1 : 0;
   }
 }
 
 // The rest of one pair from its geometry; false when it contributes nothing (not
 // live or T == 0). `grad` also fills dt and dlog.
 template <typename T>
-inline bool eval_pair(const Face<T>& f, const Consts<T>& k, const Chunk<T>& c, int j, T px, T py,
-                      bool need_log, bool grad, Pair<T>& p) {
+inline bool eval_pair(const Face<T>& f, const Consts<T>& k, const Chunk<T>& c, int j, bool need_log, bool grad,
+                      Pair<T>& p) {
   const bool inside = c.inside[j] != 0;
   if (!(inside || c.d2[j] <= k.r2)) return false;
   const T dist = std::sqrt(c.d2[j]);
@@ -159,7 +169,7 @@ inline bool eval_pair(const Face<T>& f, const Consts<T>& k, const Chunk<T>& c, i
     p.dt = free ? slope * k.inv_1m2dc : T(0);
     p.dlog = free ? slope / dm : T(0);
   }
-  p.qraw = f.gx * px + f.gy * py + f.c;
+  p.qraw = f.gx * c.px[j] + f.gy * c.py[j] + f.c;
   p.q = std::min(std::max(p.qraw, f.lo), f.hi);
   return true;
 }
@@ -176,6 +186,14 @@ struct Footprint {
     const double hi = std::max({vy[0], vy[1], vy[2]}) + R - 0.5;
     r0 = int64_t(std::clamp(std::ceil(lo), 0.0, double(H)));
     r1 = int64_t(std::clamp(std::floor(hi), -1.0, double(H - 1)));
+  }
+
+  // columns within R of the vertex x-range (a superset of every row's span)
+  void bbox_cols(int64_t& c0, int64_t& c1) const {
+    const double lo = std::min({vx[0], vx[1], vx[2]}) - R - 0.5;
+    const double hi = std::max({vx[0], vx[1], vx[2]}) + R - 0.5;
+    c0 = int64_t(std::clamp(std::ceil(lo), 0.0, double(W)));
+    c1 = int64_t(std::clamp(std::floor(hi), -1.0, double(W - 1)));
   }
 
   bool cols(int64_t row, int64_t& c0, int64_t& c1) const {
@@ -213,15 +231,41 @@ Footprint footprint(const Face<T>& f, const RasterConfig& cfg) {
   return fp;
 }
 
-// Calls fn(face, pixel index, px, py, pair) for every contributing pair of a face.
+// Evaluates the chunk's first n pixels and calls fn on the contributing ones.
+template <typename T, typename Fn>
+inline void eval_chunk(const Face<T>& f, const Consts<T>& k, int n, bool need_log, bool grad, Chunk<T>& ch,
+                       Pair<T>& p, Fn& fn) {
+  chunk_geometry(f, n, ch);
+  for (int j = 0; j < n; ++j)
+    if (eval_pair(f, k, ch, j, need_log, grad, p)) fn(ch.idx[j], ch.px[j], ch.py[j], p);
+}
+
+// Calls fn(pixel index, px, py, pair) for every contributing pair of a face. A face
+// whose blurred bounding box has at most kChunk pixels (most faces at working
+// resolutions) is one chunk; a larger one goes row by row over the row's span.
+// The pixels visited differ, the pairs that contribute (exact test) do not.
 template <typename T, typename Fn>
 void for_each_pair(const Face<T>& f, const Consts<T>& k, const RasterConfig& cfg, bool need_log, bool grad,
                    Fn&& fn) {
   const Footprint fp = footprint(f, cfg);
-  int64_t r0, r1;
+  int64_t r0, r1, b0, b1;
   fp.rows(r0, r1);
+  fp.bbox_cols(b0, b1);
+  if (r1 < r0 || b1 < b0) return;
   Pair<T> p;
   Chunk<T> ch;
+  const int64_t bw = b1 - b0 + 1, bh = r1 - r0 + 1;
+  if (bw * bh <= kChunk) {
+    int n = 0;
+    for (int64_t row = r0; row <= r1; ++row)
+      for (int64_t col = b0; col <= b1; ++col, ++n) {
+        ch.px[n] = T(col) + T(0.5);
+        ch.py[n] = T(row) + T(0.5);
+        ch.idx[n] = row * cfg.width + col;
+      }
+    eval_chunk(f, k, n, need_log, grad, ch, p, fn);
+    return;
+  }
   for (int64_t row = r0; row <= r1; ++row) {
     int64_t c0, c1;
     if (!fp.cols(row, c0, c1)) continue;
@@ -229,11 +273,12 @@ void for_each_pair(const Face<T>& f, const Consts<T>& k, const RasterConfig& cfg
     const int64_t base = row * cfg.width;
     for (int64_t col0 = c0; col0 <= c1; col0 += kChunk) {
       const int n = int(std::min<int64_t>(kChunk, c1 - col0 + 1));
-      chunk_geometry(f, col0, n, py, ch);
       for (int j = 0; j < n; ++j) {
-        const T px = T(col0 + j) + T(0.5);
-        if (eval_pair(f, k, ch, j, px, py, need_log, grad, p)) fn(base + col0 + j, px, py, p);
+        ch.px[j] = T(col0 + j) + T(0.5);
+        ch.py[j] = py;
+        ch.idx[j] = base + col0 + j;
       }
+      eval_chunk(f, k, n, need_log, grad, ch, p, fn);
     }
   }
 }

@@ -1,5 +1,7 @@
-// Plain C++ tests of kernels/raster (no framework): one triangle's coverage, a
-// finite-difference check of the backward in double, and input validation.
+// Plain C++ tests of kernels/raster (no framework): one triangle's coverage, the
+// pixels visited against every pixel of the image, a finite-difference check of
+// the backward in double (a face drawn row by row and one drawn as one chunk),
+// and input validation.
 // Exit status is the number of failed checks (at most 255).
 #include <algorithm>
 #include <cmath>
@@ -9,6 +11,7 @@
 #include <vector>
 
 #include "kernels/raster.h"
+#include "kernels/raster_pairs.h"
 
 using namespace jaxgenus;
 
@@ -93,8 +96,52 @@ void test_coverage() {
   CHECK(std::abs(o.blend[(6 * kW + 8) * 3] - 0.4) < 1e-3, "blend %g", o.blend[(6 * kW + 8) * 3]);
 }
 
-void test_finite_differences() {
+// A face whose blurred box has at most 32 pixels: drawn as one chunk of its box
+// (the default scene's face goes row by row).
+Scene small_face() {
   Scene s;
+  s.v = {8.3, 6.2, 10.1, 6.9, 8.9, 7.8};
+  s.sigma = 0.12;  // blur radius 1.1 px: box 5 x 4 pixels
+  return s;
+}
+
+void test_small_face_is_one_chunk() {
+  const Scene s = small_face();
+  const Out o = forward(s);
+  int drawn = 0;
+  for (double c : o.cov) drawn += c > 0;
+  CHECK(drawn > 0 && drawn <= 32, "small face drew %d pixels", drawn);
+  const double peak = *std::max_element(o.cov.begin(), o.cov.end());
+  CHECK(peak > 0.5 && peak <= 1.0, "small face peak coverage %g", peak);
+}
+
+// Coverage from evaluating the pair at every pixel of the image, one pixel at a
+// time: the footprint the kernel visits must not miss a contributing pixel.
+void test_footprint_misses_nothing(const Scene& s) {
+  using namespace raster_detail;
+  const RasterConfig cfg = s.config();
+  const RasterFaces<double> fs = s.faces();
+  const Consts<double> k(cfg);
+  Face<double> f{};
+  const bool made = make_face(fs, 0, 0, cfg.n_attr, f);
+  CHECK(made, "face not made");
+  if (!made) return;
+  Chunk<double> ch;
+  Pair<double> p;
+  const Out o = forward(s);
+  for (int64_t row = 0; row < kH; ++row)
+    for (int64_t col = 0; col < kW; ++col) {
+      ch.px[0] = col + 0.5;
+      ch.py[0] = row + 0.5;
+      chunk_geometry(f, 1, ch);
+      const double want = eval_pair(f, k, ch, 0, false, false, p) ? p.tv * f.w : 0.0;
+      const double got = o.cov[row * kW + col];
+      CHECK(std::abs(got - want) <= 1e-15, "pixel (%lld, %lld): cov %.17g, every-pixel %.17g", (long long)row,
+            (long long)col, got, want);
+    }
+}
+
+void test_finite_differences(const Scene& s) {
   std::mt19937 rng(7);
   std::normal_distribution<double> nd;
   std::vector<double> wc(kH * kW), wb(kH * kW * 3);
@@ -158,7 +205,11 @@ void test_validation() {
 
 int main() {
   test_coverage();
-  test_finite_differences();
+  test_finite_differences(Scene());
+  test_small_face_is_one_chunk();
+  test_footprint_misses_nothing(Scene());
+  test_footprint_misses_nothing(small_face());
+  test_finite_differences(small_face());
   test_validation();
   if (g_failures == 0) std::printf("test_raster: all passed\n");
   return std::min(g_failures, 255);
