@@ -54,9 +54,10 @@ def facing_log_weight(tw, rot, trans):
     views, so its backward costs little next to a per-view set-up."""
     n = jnp.cross(tw[:, 1] - tw[:, 0], tw[:, 2] - tw[:, 0])  # (F, 3)
     c = jnp.mean(tw, axis=1)
-    centre = -jnp.einsum("nji,nj->ni", rot, trans)  # (N, 3)
-    num = centre @ n.T - jnp.sum(n * c, axis=-1)[None, :]
-    dist2 = jnp.sum(centre * centre, -1)[:, None] - 2.0 * (centre @ c.T) + jnp.sum(c * c, -1)[None, :]
+    hi = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+    centre = -jnp.einsum("nji,nj->ni", rot, trans, precision=hi)  # (N, 3)
+    num = jnp.matmul(centre, n.T, precision=hi) - jnp.sum(n * c, axis=-1)[None, :]
+    dist2 = jnp.sum(centre * centre, -1)[:, None] - 2.0 * jnp.matmul(centre, c.T, precision=hi) + jnp.sum(c * c, -1)[None, :]
     den2 = jnp.sum(n * n, axis=-1)[None, :] * jnp.maximum(dist2, 0.0)
     ok = den2 > jnp.finfo(tw.dtype).tiny
     cos = jnp.where(ok, num * jax.lax.rsqrt(jnp.where(ok, den2, 1.0)), 0.0)

@@ -21,6 +21,7 @@ from jaxtyping import Array
 __all__ = ["Projected", "projected_faces"]
 
 _DET_EPS = 1e-12  # |det| below this: a degenerate projection, plane (0, 0, mean q)
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
 
 
 class Projected(NamedTuple):
@@ -57,7 +58,7 @@ class _Fwd(NamedTuple):
 
 def _forward(tw_fc, rot, trans, focal, pp, live, znear):
     tw = jnp.transpose(tw_fc, (2, 1, 0))  # (3 coord, 3 corner, F)
-    tri = jnp.einsum("nij,jkf->nikf", rot, tw) + trans[:, :, None, None]
+    tri = jnp.einsum("nij,jkf->nikf", rot, tw, precision=_HI) + trans[:, :, None, None]
     x, y, z = tri[:, 0], tri[:, 1], tri[:, 2]
     zok = z > znear
     iz = 1.0 / jnp.where(zok, z, 1.0)
@@ -159,11 +160,16 @@ def _projected_bwd(znear, res, g: Projected):
     g_focal = jnp.stack([jnp.sum(gu * s.x * s.iz, axis=(1, 2)), jnp.sum(gw * s.y * s.iz, axis=(1, 2))], axis=-1)
     g_pp = jnp.stack([jnp.sum(gu, axis=(1, 2)), jnp.sum(gw, axis=(1, 2))], axis=-1)
 
-    # camera-space coordinates R x + t
-    g_tri = jnp.stack([gx_cam, gy_cam, gz_cam], axis=1)  # (N, 3 coord, 3 corner, F)
-    g_tw = jnp.einsum("nij,nikf->jkf", rot, g_tri)
-    g_rot = jnp.einsum("nikf,jkf->nij", g_tri, s.tw)
-    g_trans = jnp.sum(g_tri, axis=(2, 3))
+    # camera-space coordinates R x + t, as two plain matrix products over the
+    # gradients stacked camera-axis-major, (3 N, 3 corner x F). Stacking them as
+    # (N, 3, 3, F) made XLA CPU write the whole chain above in one transposing,
+    # unvectorized fusion, and reductions over the view axis ran at ~5 ms each.
+    n = rot.shape[0]
+    g_all = jnp.concatenate([gx_cam, gy_cam, gz_cam], axis=0).reshape(3 * n, -1)  # rows (i, n)
+    r_all = jnp.transpose(rot, (1, 0, 2)).reshape(3 * n, 3)  # rows (i, n): R[n, i, :]
+    g_tw = jnp.matmul(r_all.T, g_all, precision=_HI).reshape(3, 3, -1)  # (coord j, corner k, F)
+    g_rot = jnp.transpose(jnp.matmul(g_all, s.tw.reshape(3, -1).T, precision=_HI).reshape(3, n, 3), (1, 0, 2))
+    g_trans = jnp.transpose(jnp.sum(g_all, axis=1).reshape(3, n))
     return jnp.transpose(g_tw, (2, 1, 0)), g_rot, g_trans, g_focal, g_pp, None
 
 
