@@ -42,8 +42,10 @@ class ReconstructOptions:
             `"primitive"` (always the genus-g primitive) or `"sphere"` (genus 0).
         hull_resolutions: grid sizes tried, in order, for the visual-hull start.
         fine_below: thin-structure switch: when the silhouettes' visual hull (grid
-            `hull_resolutions[0]`, largest piece) is thinner than this many pixels,
-            as `2 * volume / area` (a slab's thickness, a tube's radius),
+            `hull_resolutions[0]`, largest piece) is thinner than this many pixels
+            of the level the first cycles fit (see `coarse_resolution`: the
+            heptoroid from 512² images, 4x thicker in native pixels, fitted CD
+            0.0068 without the switch and 0.0021 with it), as `2 * volume / area` (a slab's thickness, a tube's radius),
             `reconstruct` runs with `self.fine()` instead (`history["fine"]`,
             `Reconstruction.options`). At 24 views of 128², the heptoroid's hull is
             2.6 px thick (its sheets 1.8 px), the 21 other benchmark shapes' 5.9 px

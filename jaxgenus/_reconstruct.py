@@ -242,9 +242,14 @@ def reconstruct(
     thickness, fine = None, False
     if options.fine_below > 0:
         thickness = hull_thickness(tg.alpha, cams, options.hull_resolutions[0], pixel)
-        if thickness < options.fine_below:
+        # measured in pixels of the level the first cycles fit: a structure thin at
+        # that level needs fine() even when the images themselves resolve it
+        coarse = resolution_factors(cams.height, cams.width, 1, options.coarse_resolution, 0)[0]
+        if thickness / coarse < options.fine_below:
             options, fine = options.fine(), True
-            say(f"thin structure: the visual hull is {thickness:.2f} px thick (< {options.fine_below}): fine() settings")
+            level = f" ({thickness:.2f} px of the images)" if coarse > 1 else ""
+            say(f"thin structure: the visual hull is {thickness / coarse:.2f} px thick at the fitted level{level} "
+                f"(< {options.fine_below}): fine() settings")
     lengths = options.edge_lengths() if options.remesh else []
     first = lengths[0] if lengths else options.final_edge_length
     start = start_mesh(hulls, genus, (lo, hi), first * pixel, options)

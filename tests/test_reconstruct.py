@@ -230,6 +230,20 @@ def test_thin_shapes_switch_to_the_fine_preset():
     assert not off.history["fine"] and off.history["hull_thickness"] is None and off.options.sigma == 0.1
 
 
+def test_thin_switch_measures_the_level_the_first_cycles_fit():
+    """A tube 1.5 px thick at 64² is 6 px thick at 256²: fitted through 64² copies it is still
+    thin there, so fine() applies; fitted at full size (`coarse_resolution=0`) it does not."""
+    cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=256)
+    img = jg.render_targets(_torus(0.7, 0.05), cams)
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=2, coarse_resolution=64)
+    rec = jg.reconstruct(img, cams, 1, options=opts)
+    h = rec.history
+    assert h["fine"] and h["hull_thickness"] > opts.fine_below  # thin at the 64² level, not in native pixels
+    assert [r["factor"] for r in h["resolution"]][:-1] == [4] * 4
+    full = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, coarse_resolution=0, n_cycles=1))
+    assert not full.history["fine"]
+
+
 def test_one_jit_runs_every_cycle_in_one_compiled_scan(torus_scene):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions(n_cycles=3, steps_per_cycle=100, one_jit=True)
