@@ -40,6 +40,7 @@ from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
 from jaxgenus._handles import HandleCandidate, handle_candidates, normal_image_loss, open_handles
 from jaxgenus._shading import (LIGHTING_SHAPE, LIGHTING_SHAPES, directional_lighting, face_colors, irradiance,
                                lighting_model, render_photo)
+from jaxgenus._containment import containment_penalty, outside_distance
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
 from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
 from jaxgenus._largesteps import (
@@ -108,6 +109,7 @@ __all__ = [
     "capacity_bucket",
     "component_genera",
     "connected_components",
+    "containment_penalty",
     "euler_characteristic",
     "face_colors",
     "face_normals",
@@ -132,6 +134,7 @@ __all__ = [
     "normal_image_loss",
     "objective",
     "open_handles",
+    "outside_distance",
     "optimize_block",
     "pair_images",
     "plan_render",

@@ -50,12 +50,15 @@ def _clock(t0):
 
 
 def _progress(total_cycles, say):
+    seconds = []  # per cycle, over every fit (a refit's cycles count from 0 again)
+
     def show(row, mesh):
-        done = row["cycle"] + 1
-        eta = row["elapsed"] / done * (total_cycles - done)
+        seconds.append(row["seconds"])
+        done = len(seconds)
+        eta = sum(seconds) / done * (total_cycles - done)
         bar = "#" * done + "." * (total_cycles - done)
         say(f"[{bar}] cycle {done}/{total_cycles}  loss {row['loss']:.4f}  faces {row['faces']}"
-            f"  chi {row['chi']}  {row['elapsed']:.0f}s elapsed, ETA {eta:.0f}s")
+            f"  chi {row['chi']}  {sum(seconds):.0f}s in cycles, ETA {eta:.0f}s")
 
     return show
 
@@ -120,6 +123,8 @@ def _options(args):
         change["lighting"] = args.lighting
     if args.hidden_handles is not None:
         change["hidden_handles"] = args.hidden_handles
+    if args.refits is not None:
+        change["refits"] = args.refits
     return dataclasses.replace(opts, **change)
 
 
@@ -170,7 +175,8 @@ def _reconstruct(args) -> int:
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
         f"{opts.steps_per_cycle} steps, up to {opts.max_faces} faces")
-    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(opts.n_cycles, say), log=say)
+    progress = _progress(opts.n_cycles * (1 + opts.refits), say)
+    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=progress, log=say)
     _report(rec, gt)
     _write(rec, args.out)
     return _exit_code(rec)
@@ -224,6 +230,8 @@ def main(argv=None) -> int:
     r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")
+    r.add_argument("--refits", type=int, default=None, help="fits after the first, each started from the previous "
+                   "result: carves concavities few views see (default 0; ReconstructOptions.refits)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
     r.add_argument("--coarse-resolution", type=int, default=None,
                    help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "

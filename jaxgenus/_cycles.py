@@ -83,11 +83,13 @@ def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
     return new_state, info.status
 
 
-def cycle(state, cams, targets, lr_scale, length, *, n_steps: int, opt: OptimizeOptions, remesh_options: RemeshOptions):
-    """One cycle: `n_steps` optimizer steps at `lr_scale`, then a remesh to `length` (world units) if `length > 0`."""
+def cycle(state, cams, targets, outside, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
+          remesh_options: RemeshOptions):
+    """One cycle: `n_steps` optimizer steps at `lr_scale` (`outside`: the targets' outside-distance
+    maps, or None), then a remesh to `length` (world units) if `length > 0`."""
     kw = dict(opt.render_kwargs)
     clock = jax.ShapeDtypeStruct((), jnp.int32)
-    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale)
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside)
     _, info = render(state.mesh, cams, channels=("alpha",), sigma=kw["sigma"], plan=kw["plan"], return_info=True)
     t_opt = io_callback(_clock_us, clock, record["loss"][-1], ordered=True)
     state, status = jax.lax.cond(
@@ -105,9 +107,9 @@ _cycle_jit = jax.jit(cycle, static_argnames=_STATIC, donate_argnames=("state",))
 
 
 @jax.jit(static_argnames=_STATIC, donate_argnames=("state",))
-def _all_cycles(state, cams, targets, lr_scales, lengths, *, n_steps, opt, remesh_options):
+def _all_cycles(state, cams, targets, outside, lr_scales, lengths, *, n_steps, opt, remesh_options):
     def body(s, xs):
-        return cycle(s, cams, targets, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
+        return cycle(s, cams, targets, outside, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
 
     return jax.lax.scan(body, state, (lr_scales, lengths))
 
@@ -166,8 +168,9 @@ def _row(c: int, out, *, remeshed: bool, loss, compilations: int, seconds: float
 
 
 def run_per_cycle(state, levels, world_lengths, options, remesh_options, t0, callback):
-    """One compiled cycle per cycle; `levels[c] = (cameras, targets, crop)` is what cycle c
-    fits (a pyramid level; `crop` > 0: random crops of that size) and `world_lengths[c]`
+    """One compiled cycle per cycle; `levels[c] = (cameras, targets, crop, outside)` is what cycle c
+    fits (a pyramid level; `crop` > 0: random crops of that size; `outside`: the targets'
+    outside-distance maps, or None) and `world_lengths[c]`
     the remesh length after cycle c (0: none).
 
     Returns `(state, steps, cycles, plans, t0)`; `t0` is moved forward by the time
@@ -177,11 +180,11 @@ def run_per_cycle(state, levels, world_lengths, options, remesh_options, t0, cal
     for c in range(options.n_cycles):
         tc = time.perf_counter()
         before = sum(cycle_compilations().values())
-        cams, targets, crop = levels[c]
+        cams, targets, crop, outside = levels[c]
         plan = _cycle_plan(state.mesh, cams, options)
         plans.add(plan)
         state, out = _cycle_jit(
-            state, cams, targets, jnp.float32(options.lr_decay**c), jnp.float32(world_lengths[c]),
+            state, cams, targets, outside, jnp.float32(options.lr_decay**c), jnp.float32(world_lengths[c]),
             n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, crop), remesh_options=remesh_options,
         )
         out = jax.device_get(out)
@@ -222,12 +225,12 @@ def run_one_jit(state, levels, world_lengths, options, remesh_options, t0, callb
     One program has one image size: every cycle fits the last level (`levels[-1]`,
     the images' own resolution, through crops when they are large)."""
     n = options.n_cycles
-    cams, targets, crop = levels[-1]
+    cams, targets, crop, outside = levels[-1]
     before = sum(cycle_compilations().values())
     plan = None if jax.default_backend() == "cpu" else _growing_plan(state.mesh, cams, world_lengths, options)
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
     state, out = _all_cycles(
-        state, cams, targets, lr_scales, jnp.asarray(world_lengths, jnp.float32),
+        state, cams, targets, outside, lr_scales, jnp.asarray(world_lengths, jnp.float32),
         n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, crop), remesh_options=remesh_options,
     )
     out = jax.device_get(out)

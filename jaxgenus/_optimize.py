@@ -57,6 +57,7 @@ RECORD_KEYS = (
     "inversion",
     "photo",
     "albedo_smoothness",
+    "containment",
     "grad_norm",
     "cg_iterations_forward",
     "cg_iterations_backward",
@@ -221,7 +222,8 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting
     )
 
 
-def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale):
+def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale,
+                   outside=None):
     """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program)."""
     mesh = state.mesh
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
@@ -239,7 +241,10 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     app_adam = plain_adam(1.0) if photo else None
     app_lr = (options.albedo_learning_rate, options.lighting_learning_rate)
 
-    def loss_fn(x, app, cams, tgt):
+    if crop:  # crops move the cameras' principal points: the whole-view maps no longer line up
+        outside = None
+
+    def loss_fn(x, app, cams, tgt, out):
         m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
         return objective(
             m,
@@ -250,6 +255,7 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
             renderer=options.renderer,
             render_kwargs=dict(options.render_kwargs),
             appearance=app,
+            outside=out,
         )
 
     def appearance_step(app, g_app, app_state, ok):
@@ -267,13 +273,14 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         x, u, gu_prev, adam_state, key, xa, app, app_state = carry
         key, sub = jax.random.split(key)
         if k is None or k >= n_views:
-            cams, tgt, box = cameras, targets, boxes
+            cams, tgt, box, out = cameras, targets, boxes, outside
         else:
             idx = jax.random.choice(sub, n_views, (k,), replace=False)
             cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
+            out = None if outside is None else outside[idx]
         if crop:
             cams, tgt = crop_views(jax.random.fold_in(sub, 1), cams, tgt, box, crop)
-        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt)
+        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out)
         gx = jnp.where(vmask, gx, 0.0)
         gu, info_b = solve(gx, gu_prev)
         updates, new_adam = adam.update(gu, adam_state)
@@ -292,7 +299,7 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
         zero = jnp.zeros((), x.dtype)
         record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion", "photo",
-                                                              "albedo_smoothness")}
+                                                              "albedo_smoothness", "containment")}
         record.update(
             loss=loss,
             grad_norm=jnp.sqrt(jnp.sum(gx * gx)),

@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus._cameras import Cameras
+from jaxgenus._containment import outside_distance
 from jaxgenus._cycles import cycle_compilations, run_one_jit, run_per_cycle
 from jaxgenus._frame import pixel_footprint, scene_frame
 from jaxgenus._handles import open_handles
@@ -117,13 +118,15 @@ def _handle_warnings(handles: list[dict]) -> list[str]:
             "are probably not the object's own (history['handles'])"]
 
 
-def _levels(cams, tg, factors, crop):
-    """`(cameras, targets, crop)` per cycle; crops only at the native level of a schedule."""
+def _levels(cams, tg, factors, crop, containment: bool):
+    """`(cameras, targets, crop, outside)` per cycle; crops only at the native level of a
+    schedule; `outside`: the level's outside-distance maps when `containment` (else None)."""
     built = {}
     for f in sorted(set(factors)):
         level_crop = crop if (f == 1 and factors[0] > 1) else 0
         level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
-        built[f] = (scaled_cameras(cams, f), jnp.asarray(level), level_crop)
+        outside = jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2)) if containment else None
+        built[f] = (scaled_cameras(cams, f), jnp.asarray(level), level_crop, outside)
     return [built[f] for f in factors]
 
 
@@ -139,7 +142,7 @@ def _image_handles(images, world_cams, cams, tg, genus, start, frame, edge, opti
     Returns `(start, handle records)`; the given start when that fails."""
     have = genus - start.tunnels
     pre = reconstruct(images, world_cams, have, targets=tg.kind,
-                      options=dataclasses.replace(options, hidden_handles="drill"), key=key)
+                      options=dataclasses.replace(options, hidden_handles="drill", refits=0), key=key)
     v, f = pre.mesh.to_numpy()
     v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
     factor = 1
@@ -219,6 +222,26 @@ def reconstruct(
         False, with reasons in `history["warnings"]`, when the result does not match
         its images. Inputs are not modified.
     """
+    rec = _fit(images, cams, genus, targets, options, key, callback, log, None)
+    for r in range(options.refits):
+        if not rec.genus_ok:  # nothing of the right genus to start from: keep what failed, it says why
+            break
+        say = None if log is None else (lambda line, r=r: log(f"refit {r + 1}/{options.refits}: {line}"))
+        rec = _fit(images, cams, rec.history.requested_genus, targets, options, key, callback, say, rec)
+    return rec
+
+
+def _refit_start(prior: Reconstruction, frame, genus: int, edge: float, options) -> Start | None:
+    """The previous fit, in the canonical frame, remeshed to the first edge length (None when that fails)."""
+    v, f = prior.mesh.to_numpy()
+    v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
+    mesh = remeshed_start(Mesh.from_numpy(v.astype(np.float32), np.asarray(f, np.int32)), genus, edge, options)
+    h = prior.history
+    return None if mesh is None else Start(mesh, h.start + "+refit", h.hull_grid, h.tunnels)
+
+
+def _fit(images, cams, genus, targets, options, key, callback, log, prior: Reconstruction | None) -> Reconstruction:
+    """One fit of `reconstruct`; from `prior`'s result when given (a refit)."""
     tg = check_targets(images, cams, targets)
     _check_arguments(genus, options, cams)
     key = jax.random.key(0) if key is None else key
@@ -231,7 +254,7 @@ def reconstruct(
         f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}")
     lo, hi = visual_hull_bounds(tg.alpha, cams)
     pixel = pixel_footprint(cams, 0.5 * (lo + hi))
-    estimate, hulls = None, HullTable(tg.alpha, cams)
+    estimate, hulls = None if prior is None else prior.history.genus_estimate, HullTable(tg.alpha, cams)
     if genus is None:
         estimate = estimate_genus(hulls, options.hull_resolutions)
         genus = estimate["genus"]
@@ -252,9 +275,14 @@ def reconstruct(
                 f"(< {options.fine_below}): fine() settings")
     lengths = options.edge_lengths() if options.remesh else []
     first = lengths[0] if lengths else options.final_edge_length
-    start = start_mesh(hulls, genus, (lo, hi), first * pixel, options)
-    handles = _handle_sources(start, genus)
-    if start.tunnels and tg.kind == "normals" and options.hidden_handles == "images":
+    start = None if prior is None else _refit_start(prior, frame, genus, first * pixel, options)
+    if prior is not None and start is None:
+        say("refit: the previous result could not be remeshed into a start; keeping it")
+        return prior
+    handles = prior.history.handles if prior is not None else None
+    start = start_mesh(hulls, genus, (lo, hi), first * pixel, options) if start is None else start
+    handles = _handle_sources(start, genus) if handles is None else handles
+    if prior is None and start.tunnels and tg.kind == "normals" and options.hidden_handles == "images":
         say(f"hidden handles: the visual hull has {genus - start.tunnels} of {genus} handles; fitting that genus "
             "to find the others in the images")
         start, handles = _image_handles(images, world_cams, cams, tg, genus, start, frame, first * pixel, options, key)
@@ -269,7 +297,7 @@ def reconstruct(
     remesh_options = RemeshOptions(adaptive=options.adaptive, iterations=3)
     factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
                                  options.native_cycles)
-    levels = _levels(cams, tg, factors, options.crop)
+    levels = _levels(cams, tg, factors, options.crop, options.weights.containment > 0)
     if options.one_jit:  # one program, one image size: the native level (crops when large) throughout
         factors, levels = [1] * options.n_cycles, [levels[-1]] * options.n_cycles
     # a remesh sizes its edges in pixels of the level the next cycle fits
@@ -297,7 +325,7 @@ def reconstruct(
     history = History(
         steps=steps,
         cycles=tuple(cycles),
-        seconds=time.perf_counter() - t0,
+        seconds=time.perf_counter() - t0 + (0.0 if prior is None else prior.history.seconds),
         requested_genus=genus,
         start=start.kind,
         tunnels=start.tunnels,

@@ -93,6 +93,43 @@ def test_inversion_penalty_zero_at_rest_positive_after_fold_and_gradient():
         _fd_check(lambda y: jg.inversion_penalty(y, rest, faces), folded)
 
 
+def test_outside_distance_is_the_pixel_distance_to_the_silhouette():
+    a = np.zeros((2, 9, 12), np.float32)
+    a[0, 3:6, 4:7] = 1.0
+    a[0, 0, 11] = 0.1  # under 0.5: outside by default, inside at a level's lower threshold
+    d = jg.outside_distance(a)
+    assert d.shape == (2, 9, 12) and d.dtype == np.float32
+    assert d[0, 4, 5] == 0.0 and d[0, 4, 9] == 3.0 and d[0, 0, 0] == pytest.approx(5.0)  # (0, 0) -> (3, 4)
+    assert d[0, 0, 11] == pytest.approx(np.hypot(3, 5))
+    low = jg.outside_distance(a, threshold=0.05)
+    assert low[0, 0, 11] == 0.0 and low[0, 1, 11] == 1.0
+    assert np.allclose(d[1], np.hypot(9, 12))  # an empty view: everything is far outside
+    with pytest.raises(ValueError, match="alpha"):
+        jg.outside_distance(a[0])
+
+
+def test_containment_penalty_zero_inside_pulls_a_spike_back_and_gradient():
+    v, f, _ = _sphere(2)
+    cams = jg.sphere_cameras(6, radius=3.0, fov_deg=40.0, resolution=48)
+    alpha = jg.render_targets(jg.Mesh.from_numpy(v.astype(np.float32), f), cams)[..., 3]
+    outside = jg.outside_distance(alpha)
+    mask = np.ones(len(v), bool)
+    with jax.enable_x64(True):
+        out, m = jnp.asarray(outside, jnp.float64), jnp.asarray(mask)
+        pen = lambda y: jg.containment_penalty(y, m, cams, out)
+        assert float(pen(jnp.asarray(0.97 * v))) == 0.0  # inside every silhouette
+        spiked = v.copy()
+        spiked[7] *= 1.6  # one vertex 0.6 out: ~12 px in the views that see it from the side
+        assert float(pen(jnp.asarray(spiked))) * len(v) > 20.0  # its pixels past the margin, summed over views
+        g = _fd_check(pen, spiked, eps=1e-7, rtol=1e-4)
+        assert np.abs(g[np.arange(len(v)) != 7]).max() == 0.0  # only the spike is pulled
+        assert g[7] @ spiked[7] > 0  # descent (-g) points back towards the object
+        # padding vertices are ignored
+        padded = jnp.asarray(np.vstack([spiked, [[5.0, 5.0, 5.0]]]))
+        assert float(jg.containment_penalty(padded, jnp.asarray(np.append(mask, False)), cams, out)) == pytest.approx(
+            float(pen(jnp.asarray(spiked))))
+
+
 def test_image_loss_values_and_gradient():
     rng = np.random.default_rng(2)
     with jax.enable_x64(True):

@@ -134,6 +134,28 @@ def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_is_too_high(
     assert rec.genus == 0 and rec.genus_ok
 
 
+def test_refit_starts_from_the_previous_result(torus_scene):
+    gt, cams, img = torus_scene
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=80, initial_faces=800, max_faces=3000, start="primitive",
+                                 weights=jg.LossWeights(containment=0.1))
+    first = jg.reconstruct(img, cams, 1, options=opts)
+    assert first.history["containment"][0] > 0  # the primitive in the hull's bounds pokes out of the silhouettes
+    lines, rows = [], []
+    rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=1), log=lines.append,
+                         callback=lambda row, mesh: rows.append(row["cycle"]))
+    assert rec.genus == 1 and rec.history["start"] == "primitive+refit"
+    # the refit starts from the first fit, not from the primitive: its start already matches the silhouettes
+    start_first, start_refit = np.mean(first.history["start_silhouette_iou"]), np.mean(rec.history["start_silhouette_iou"])
+    assert start_first < 0.85 and start_refit > 0.95 and start_refit >= np.mean(first.history["silhouette_iou"]) - 0.02
+    assert rows == [0, 1, 0, 1] and any(line.startswith("refit 1/1: start: primitive+refit") for line in lines)
+    assert np.all(np.isfinite(rec.history["containment"])) and np.all(rec.history["containment"] >= 0)
+    plain = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, weights=jg.LossWeights()))
+    assert np.all(plain.history["containment"] == 0)  # off by default: not computed
+    assert rec.history["seconds"] > rec.history["cycles"][-1]["elapsed"]  # the first fit's time is counted
+    with pytest.raises(ValueError, match="refits"):
+        jg.ReconstructOptions(refits=-1)
+
+
 def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
     from jaxgenus._start import drill_tunnels
 
