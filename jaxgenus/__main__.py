@@ -49,15 +49,16 @@ def _clock(t0):
     return say
 
 
-def _progress(total_cycles, say):
-    seconds = []  # per cycle, over every fit (a refit's cycles count from 0 again)
+def _progress(say):
+    seconds = []  # per cycle, over every fit
 
     def show(row, mesh):
         seconds.append(row["seconds"])
-        done = len(seconds)
-        eta = sum(seconds) / done * (total_cycles - done)
-        bar = "#" * done + "." * (total_cycles - done)
-        say(f"[{bar}] cycle {done}/{total_cycles}  loss {row['loss']:.4f}  faces {row['faces']}"
+        done, total = len(seconds), row["fits"] * row["n_cycles"]  # the fits share their cycle count
+        eta = sum(seconds) / done * max(total - done, 0)
+        bar = "#" * done + "." * max(total - done, 0)
+        fit = f"fit {row['fit'] + 1}/{row['fits']} " if row["fits"] > 1 else ""
+        say(f"[{bar}] {fit}cycle {row['cycle'] + 1}/{row['n_cycles']}  loss {row['loss']:.4f}  faces {row['faces']}"
             f"  chi {row['chi']}  {sum(seconds):.0f}s in cycles, ETA {eta:.0f}s")
 
     return show
@@ -175,8 +176,7 @@ def _reconstruct(args) -> int:
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
         f"{opts.steps_per_cycle} steps, up to {opts.max_faces} faces")
-    progress = _progress(opts.n_cycles * (1 + opts.refits), say)
-    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=progress, log=say)
+    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say)
     _report(rec, gt)
     _write(rec, args.out)
     return _exit_code(rec)
@@ -194,7 +194,7 @@ def _demo(args) -> int:
           f"rendered in {time.perf_counter() - t0:.1f}s")
     opts = jg.ReconstructOptions(n_cycles=args.cycles, steps_per_cycle=args.steps, one_jit=args.one_jit)
     say = _clock(time.perf_counter())
-    rec = jg.reconstruct(images, cams, g, options=opts, callback=_progress(opts.n_cycles, say), log=say)
+    rec = jg.reconstruct(images, cams, g, options=opts, callback=_progress(say), log=say)
     _report(rec, gt)
     _write(rec, Path(args.out) / f"{args.scene}.obj")
     return _exit_code(rec)
@@ -231,7 +231,8 @@ def main(argv=None) -> int:
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")
     r.add_argument("--refits", type=int, default=None, help="fits after the first, each started from the previous "
-                   "result: carves concavities few views see (default 0; ReconstructOptions.refits)")
+                   "result: carves concavities few views see (default: up to 2 for normal maps over 1.5 x the "
+                   "coarse resolution, else 0; ReconstructOptions.refits)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
     r.add_argument("--coarse-resolution", type=int, default=None,
                    help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "

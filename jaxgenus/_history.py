@@ -51,6 +51,10 @@ class CycleRecord(_Readable):
         seconds: wall time of the cycle; elapsed: since the run started.
         remesh_status: `RemeshStatus` name of the remesh after the cycle (None: no remesh).
         remesh_seconds: its wall time (None: no remesh).
+        n_cycles: cycles of this fit (`options.fine()` has more).
+        fit, fits: this cycle's fit (0: the first; k: the k-th refit) and the fits the run
+            plans (`1 + ReconstructOptions.refit_count`; a refit that fits its images
+            worse than its start, or a default one that gains little, ends the run early).
     """
 
     cycle: int
@@ -64,6 +68,9 @@ class CycleRecord(_Readable):
     elapsed: float
     remesh_status: str | None = None
     remesh_seconds: float | None = None
+    n_cycles: int = 0
+    fit: int = 0
+    fits: int = 1
 
     def to_json(self) -> dict:
         return {k: getattr(self, k) for k in self._names() if k in self}

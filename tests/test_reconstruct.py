@@ -142,18 +142,68 @@ def test_refit_starts_from_the_previous_result(torus_scene):
     assert first.history["containment"][0] > 0  # the primitive in the hull's bounds pokes out of the silhouettes
     lines, rows = [], []
     rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=1), log=lines.append,
-                         callback=lambda row, mesh: rows.append(row["cycle"]))
+                         callback=lambda row, mesh: rows.append((row["fit"], row["fits"], row["cycle"], row["n_cycles"])))
     assert rec.genus == 1 and rec.history["start"] == "primitive+refit"
     # the refit starts from the first fit, not from the primitive: its start already matches the silhouettes
     start_first, start_refit = np.mean(first.history["start_silhouette_iou"]), np.mean(rec.history["start_silhouette_iou"])
     assert start_first < 0.85 and start_refit > 0.95 and start_refit >= np.mean(first.history["silhouette_iou"]) - 0.02
-    assert rows == [0, 1, 0, 1] and any(line.startswith("refit 1/1: start: primitive+refit") for line in lines)
+    assert rows == [(0, 2, 0, 2), (0, 2, 1, 2), (1, 2, 0, 2), (1, 2, 1, 2)] and rec.history["cycles"][-1]["fit"] == 1
+    assert any(line.startswith("refit 1/1: start: primitive+refit") for line in lines)
     assert np.all(np.isfinite(rec.history["containment"])) and np.all(rec.history["containment"] >= 0)
     plain = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, weights=jg.LossWeights()))
     assert np.all(plain.history["containment"] == 0)  # off by default: not computed
     assert rec.history["seconds"] > rec.history["cycles"][-1]["elapsed"]  # the first fit's time is counted
-    with pytest.raises(ValueError, match="refits"):
-        jg.ReconstructOptions(refits=-1)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="refits"):
+            jg.ReconstructOptions(refits=bad)
+
+
+def test_a_refit_that_fits_worse_is_dropped(torus_scene, monkeypatch):
+    """A refit started from a shrunken copy of the result cannot recover in 5 steps: the run
+    keeps the first fit (same mesh), says why, and counts the refit's time."""
+    import equinox as eqx
+
+    import jaxgenus._reconstruct as R
+
+    gt, cams, img = torus_scene
+    opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=60, initial_faces=800, max_faces=3000)
+    first = jg.reconstruct(img, cams, 1, options=opts)
+    refit_start = R._refit_start
+
+    def shrunken(prior, *args):
+        start = refit_start(prior, *args)
+        return start._replace(mesh=eqx.tree_at(lambda m: m.vertices, start.mesh, start.mesh.vertices * 0.6))
+
+    monkeypatch.setattr(R, "_refit_start", shrunken)
+    lines, refit_seconds = [], []
+    rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=2), log=lines.append,
+                         callback=lambda row, m: refit_seconds.append(row["seconds"]) if row["fit"] else None)
+    assert rec.history["start"] == first.history["start"] and "refit" not in rec.history["start"]
+    np.testing.assert_array_equal(rec.mesh.to_numpy()[0], first.mesh.to_numpy()[0])
+    assert any(w.startswith("refit 1 was dropped: ") and "silhouette IoU" in w for w in rec.history["warnings"])
+    assert any(line.startswith("refit 1/2: fits its images worse") for line in lines)
+    assert not any(line.startswith("refit 2/2") for line in lines)
+    assert refit_seconds and rec.history["seconds"] > rec.history["cycles"][-1]["elapsed"] + sum(refit_seconds)
+
+
+def test_default_refits_stop_when_a_refit_gains_little(torus_scene, monkeypatch):
+    """Default refits (64² images over a 32 px coarse level: two) stop after a refit that
+    lowers the normal error by less than the threshold; an explicit count does not."""
+    import jaxgenus._reconstruct as R
+
+    gt, cams, img = torus_scene
+    opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=20, initial_faces=800, max_faces=3000,
+                                 coarse_resolution=32)
+    assert opts.refit_count(64, 64) == 2
+    monkeypatch.setattr(R, "_fits_worse", lambda new, old: "")  # keep every refit: only the stop rule acts
+    monkeypatch.setattr(R, "_MIN_REFIT_GAIN", 1.0)  # no refit lowers the error by 100 %
+    for refits, n_fits in ((None, 2), (2, 3)):
+        lines = []
+        rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=refits), log=lines.append)
+        assert rec.history["start"].count("+refit") == n_fits - 1
+        stopped = [line for line in lines if line.startswith("refit 1/2: lowered the mean normal error by")]
+        assert len(stopped) == (refits is None) and not any(w.startswith("refit") for w in rec.history["warnings"])
+        assert any(line.startswith("refit 2/2") for line in lines) == (refits == 2)
 
 
 def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
@@ -208,6 +258,7 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
     assert jg.genus(jg.load_mesh(out)) == 1
     hist = json.loads(out.with_suffix(".json").read_text())
     assert len(hist["loss"]) == 20 and len(hist["cycles"]) == 2
+    assert "[##] cycle 2/2 " in text and "refit" not in text
 
 
 def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
@@ -258,12 +309,27 @@ def test_thin_switch_measures_the_level_the_first_cycles_fit():
     cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=256)
     img = jg.render_targets(_torus(0.7, 0.05), cams)
     opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=2, coarse_resolution=64)
-    rec = jg.reconstruct(img, cams, 1, options=opts)
+    lines = []
+    rec = jg.reconstruct(img, cams, 1, options=opts, log=lines.append)
     h = rec.history
     assert h["fine"] and h["hull_thickness"] > opts.fine_below  # thin at the 64² level, not in native pixels
     assert [r["factor"] for r in h["resolution"]][:-1] == [4] * 4
+    # normal maps fitted through the schedule get two refits by default (refits=None), each one fine() again
+    assert rec.options.refits is None
+    assert any(line.startswith("refits: 2 more fits from this result (normal maps of 256x256") for line in lines)
+    assert any(line.startswith("refit 1/2: start: visual_hull+refit") for line in lines)  # (2 steps: maybe dropped)
     full = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, coarse_resolution=0, n_cycles=1))
-    assert not full.history["fine"]
+    assert not full.history["fine"] and "refit" not in full.history["start"]  # fitted at its own size: none
+
+
+def test_default_refits_follow_the_schedule_and_the_targets():
+    o = jg.ReconstructOptions()
+    assert o.refits is None and o.refit_count(128, 128) == 0 and o.refit_count(191, 120) == 0
+    assert o.refit_count(192, 100) == 2 and o.refit_count(480, 640) == 2 and o.refit_count(2048, 2048) == 2
+    assert o.refit_count(512, 512, "silhouette") == 0 and o.refit_count(512, 512, "photo") == 0
+    assert jg.ReconstructOptions(coarse_resolution=0).refit_count(1024, 1024) == 0
+    assert jg.ReconstructOptions(refits=1).refit_count(64, 64, "silhouette") == 1
+    assert jg.ReconstructOptions(refits=0).refit_count(1024, 1024) == 0
 
 
 def test_one_jit_runs_every_cycle_in_one_compiled_scan(torus_scene):
