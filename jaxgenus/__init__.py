@@ -40,6 +40,7 @@ from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
 from jaxgenus._handles import HandleCandidate, handle_candidates, normal_image_loss, open_handles
 from jaxgenus._shading import (LIGHTING_SHAPE, LIGHTING_SHAPES, directional_lighting, face_colors, irradiance,
                                lighting_model, render_photo)
+from jaxgenus._carving import carving_term
 from jaxgenus._containment import containment_penalty, outside_distance
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
 from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
@@ -107,6 +108,7 @@ __all__ = [
     "cameras_to_opengl",
     "directional_lighting",
     "capacity_bucket",
+    "carving_term",
     "component_genera",
     "connected_components",
     "containment_penalty",

@@ -126,6 +126,8 @@ def _options(args):
         change["hidden_handles"] = args.hidden_handles
     if args.refits is not None:
         change["refits"] = args.refits
+    if args.refit_carve is not None:
+        change["refit_carve"] = args.refit_carve
     return dataclasses.replace(opts, **change)
 
 
@@ -233,6 +235,9 @@ def main(argv=None) -> int:
     r.add_argument("--refits", type=int, default=None, help="fits after the first, each started from the previous "
                    "result: carves concavities few views see (default: up to 2 for normal maps over 1.5 x the "
                    "coarse resolution, else 0; ReconstructOptions.refits)")
+    r.add_argument("--refit-carve", type=float, default=None, help="in refits of normal maps, move the surface away "
+                   "from the camera where its normals contradict the images, with this weight (default 1; 0: off; "
+                   "ReconstructOptions.refit_carve)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
     r.add_argument("--coarse-resolution", type=int, default=None,
                    help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "

@@ -30,6 +30,7 @@ from typing import Callable
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from jaxgenus._carving import carving_term
 from jaxgenus._containment import containment_penalty
 from jaxgenus._energies import bilaplacian_energy, inversion_penalty
 from jaxgenus._render import render
@@ -71,6 +72,9 @@ class LossWeights:
     gecko from 256² images the native cycle folded (inversion penalty 691) and ended at
     IoU 0.23, and the heptoroid from 1024² fitted worse (CD 0.0021 -> 0.0033;
     docs/reconstruction.md).
+    `carve` weighs `carving_term` (normal maps only: the visible surface moves away from the
+    camera where its normal is more than 37 degrees from the target's; value 0, a force).
+    Off here; `reconstruct` sets it in refits (`ReconstructOptions.refit_carve`).
     """
 
     alpha: float = 1.0
@@ -80,6 +84,7 @@ class LossWeights:
     photo: float = 6.0
     albedo_smoothness: float = 20.0
     containment: float = 0.0
+    carve: float = 0.0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -187,8 +192,13 @@ def objective(
         if weights.albedo_smoothness:
             terms["albedo_smoothness"] = weights.albedo_smoothness * albedo_smoothness(albedo, mesh)
     colour = weights.photo if photo else weights.normal
-    if weights.alpha or (colour and target.shape[-1] == 4):
-        rendered = renderer(mesh, cameras, channels=render_channels(target, photo), **kw)
+    carve = bool(weights.carve) and not photo and target.shape[-1] == 4
+    if weights.alpha or (colour and target.shape[-1] == 4) or carve:
+        channels = render_channels(target, photo) + (("depth",) if carve else ())
+        rendered = renderer(mesh, cameras, channels=channels, **kw)
+        if carve:
+            rendered, depth = rendered[..., :4], rendered[..., 4]
+            terms["carve"] = weights.carve * carving_term(rendered, depth, target)
         terms.update(image_terms(rendered, target, weights, photo))
     if weights.bilaplacian:
         terms["bilaplacian"] = weights.bilaplacian * bilaplacian_energy(mesh.vertices, mesh.faces)

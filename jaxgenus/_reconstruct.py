@@ -229,7 +229,9 @@ def reconstruct(
     if refits and log is not None and rec.genus_ok:
         why = "" if options.refits is not None else (f" (normal maps of {cams.width}x{cams.height} are fitted "
                                                       "through the resolution schedule; ReconstructOptions.refits)")
-        log(f"refits: {refits} more fit{'s' if refits > 1 else ''} from this result{why}")
+        carve = (", carving where the normals contradict the images (ReconstructOptions.refit_carve)"
+                 if tg.kind == "normals" and options.refit_carve and not options.weights.carve else "")
+        log(f"refits: {refits} more fit{'s' if refits > 1 else ''} from this result{why}{carve}")
     for r in range(refits):
         if not rec.genus_ok:  # nothing of the right genus to start from: keep what failed, it says why
             break
@@ -237,11 +239,19 @@ def reconstruct(
         new = _fit(images, tg, cams, rec.history.requested_genus, options, key, callback, say, rec, (r + 1, 1 + refits))
         worse = _fits_worse(new.history, rec.history)
         if worse:
+            # a carving refit that fits worse is retried once without carving (the heptoroid's
+            # tubes: a contour a pixel off reads as a contradiction); any other is final
+            retry = new.options.weights.carve > options.weights.carve and r + 1 < refits
             if say is not None:
-                say(f"fits its images worse than the fit it started from ({worse}): keeping that fit")
+                say(f"fits its images worse than the fit it started from ({worse}): keeping that fit"
+                    + ("; the next refit runs without carving" if retry else ""))
             history = dataclasses.replace(rec.history, seconds=new.history.seconds,
                                           warnings=rec.history.warnings + [f"refit {r + 1} was dropped: {worse}"])
-            return dataclasses.replace(rec, history=history)
+            rec = dataclasses.replace(rec, history=history)
+            if not retry:
+                return rec
+            options = dataclasses.replace(options, refit_carve=0.0)
+            continue
         gain = _normal_gain(new.history, rec.history)
         rec = new
         if options.refits is None and r + 1 < refits and gain < _MIN_REFIT_GAIN:
@@ -297,6 +307,8 @@ def _fit(images, tg, cams, genus, options, key, callback, log, prior: Reconstruc
     """One fit of `reconstruct` (the `fit[0]`-th of `fit[1]`); from `prior`'s result when given (a refit)."""
     key = jax.random.key(0) if key is None else key
     say = log if log is not None else (lambda line: None)
+    if prior is not None and tg.kind == "normals" and options.refit_carve and not options.weights.carve:
+        options = dataclasses.replace(options, weights=dataclasses.replace(options.weights, carve=options.refit_carve))
 
     t0 = time.perf_counter()
     frame = scene_frame(tg.alpha, cams)

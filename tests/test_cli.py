@@ -24,3 +24,7 @@ def test_reconstruct_refuses_bad_genus_and_an_output_that_overwrites_an_input(tm
     with pytest.raises(SystemExit) as exc:
         main(args + ["--genus", "two"])
     assert exc.value.code == 2
+    capsys.readouterr()
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--refit-carve", "-1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "refit_carve" in err
