@@ -67,7 +67,7 @@ def required_pairs(mesh, cams, sigma: float) -> int:
 
     import jaxgenus as jg
 
-    r = sigma * math.log(1e4)  # blur radius in px (jaxgenus._render.blur_radius)
+    r = sigma * math.log(1e4)  # blur radius in px (jaxgenus.rendering._render.blur_radius)
     v, f = mesh.to_numpy()
     uv, z = jg.project(cams, v, return_depth=True)
     uv, z = np.asarray(uv), np.asarray(z)
@@ -94,11 +94,11 @@ def run_cell(n_faces: int, n_views: int, res: int, channels: tuple[str, ...], it
     import jaxgenus as jg
 
     v, f = torus(n_faces)
-    mesh = jg.Mesh.from_numpy(v, f, capacity=jg.capacity_bucket(len(f))[1])
+    mesh = jg.Mesh.from_numpy(v, f, capacity=jg.geometry.capacity_bucket(len(f))[1])
     cams = jg.sphere_cameras(n_views, radius=4.5, fov_deg=40.0, resolution=res)
     # "default": what a user writes, render() under jit with no plan; "plan": a plan from the geometry
     plan = jg.plan_render(mesh, cams, sigma=sigma) if mode == "plan" else None
-    target = jnp.zeros((n_views, res, res, sum(jg.CHANNEL_SIZES[c] for c in channels)), jnp.float32)
+    target = jnp.zeros((n_views, res, res, sum(jg.rendering.CHANNEL_SIZES[c] for c in channels)), jnp.float32)
 
     def loss(verts):
         m = jg.Mesh(verts, mesh.faces, mesh.n_vertices, mesh.n_faces)

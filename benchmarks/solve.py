@@ -12,7 +12,7 @@ vertices), torus (4992), icosphere (10242), padded to their capacity bucket.
 2. One `optimize_block` step (a block of `--steps` steps, after compiling it):
    optimizer only (bilaplacian energy, no render) and the full step (alpha +
    normal images). The hand-written solver is put behind
-   `jaxgenus._optimize.largesteps_solve` for this measurement only; its blocks
+   `jaxgenus.optim._optimize.largesteps_solve` for this measurement only; its blocks
    use `cg_max_iter=1999` (the library's 2000) so the two compile separately.
 
 The two implementations are timed interleaved (A B A B ...), `--rounds` times;
@@ -36,7 +36,7 @@ import trimesh
 
 import jaxgenus as jg
 from _problem import stretched_fit
-import jaxgenus._optimize as optimize_module  # only to swap the solver for the step measurement
+import jaxgenus.optim._optimize as optimize_module  # only to swap the solver for the step measurement
 
 
 def hand_pcg(laplacian, b, lambda_=19.0, x0=None, *, rtol=1e-6, max_iter=2000):
@@ -96,7 +96,7 @@ def meshes():
         ("torus 96x52", trimesh.creation.torus(0.6, 0.25, major_sections=96, minor_sections=52)),
         ("icosphere 5", trimesh.creation.icosphere(subdivisions=5, radius=0.8)),
     ]:
-        vcap, fcap = jg.capacity_bucket(len(m.faces))
+        vcap, fcap = jg.geometry.capacity_bucket(len(m.faces))
         out.append((name, jg.Mesh.from_numpy(np.asarray(m.vertices), np.asarray(m.faces), capacity=(vcap, fcap))))
     return out
 

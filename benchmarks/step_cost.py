@@ -120,7 +120,7 @@ def main():
     ap.add_argument("--repeats", type=int, default=5)
     args = ap.parse_args()
     m = trimesh.creation.icosphere(subdivisions=args.subdivisions, radius=0.8)
-    vcap, fcap = jg.capacity_bucket(len(m.faces))
+    vcap, fcap = jg.geometry.capacity_bucket(len(m.faces))
     mesh = jg.Mesh.from_numpy(m.vertices, m.faces, capacity=(vcap, fcap))
     print(f"mesh: {int(mesh.n_vertices)} vertices, {int(mesh.n_faces)} faces, capacity {vcap}/{fcap}\n")
     print(solver_table(mesh, args.repeats) + "\n")

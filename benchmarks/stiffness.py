@@ -32,7 +32,7 @@ import jaxgenus as jg
 def problem(subdivisions, resolution, n_views):
     m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=0.8)
     v, f = np.asarray(m.vertices), np.asarray(m.faces)
-    vcap, fcap = jg.capacity_bucket(len(f))
+    vcap, fcap = jg.geometry.capacity_bucket(len(f))
     mesh = jg.Mesh.from_numpy(v, f, capacity=(vcap, fcap))
     cams = jg.sphere_cameras(n_views, radius=3.0, fov_deg=40.0, resolution=resolution)
     images = jg.render(jg.Mesh.from_numpy(v * np.array([1.25, 0.7, 0.9]), f), cams, channels=("alpha", "normal"))

@@ -1,70 +1,109 @@
 """jaxgenus: inverse rendering of watertight triangle meshes of any genus, in JAX.
 
-The public API is flat: everything a user needs is re-exported here from the
-private modules (one concept per module), and `__all__` lists it.
+The package is built in layers, one subpackage each, imports pointing down the list:
+
+* `jaxgenus.geometry`: meshes, cameras, topology, operators, energies, primitives, remeshing;
+* `jaxgenus.rendering`: the soft rasterizer and photo shading;
+* `jaxgenus.capture`: images, masks, camera files, pairing, targets, visual hull, frame;
+* `jaxgenus.optim`: the objective and the large-steps optimizer;
+* `jaxgenus.pipeline`: `reconstruct` and its stages.
+
+The public API is flat: what a user calls is re-exported here and listed in `__all__`;
+plumbing (buffer layouts, record keys, capacity buckets) stays in its subpackage.
 """
 
 from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, version as _version
 
-from jaxgenus._mesh import Mesh, capacity_bucket
-from jaxgenus._cameras import (
+from jaxgenus import capture, geometry, metrics, optim, pipeline, rendering
+
+from jaxgenus.geometry import (
+    bilaplacian_energy,
     Cameras,
     cameras_from_blender,
     cameras_from_opencv,
     cameras_from_opengl,
     cameras_to_opencv,
     cameras_to_opengl,
-    look_at,
-    project,
-    sphere_cameras,
-)
-from jaxgenus._io import load_mesh, save_mesh
-from jaxgenus._images import LoadedImages, load_images
-from jaxgenus._camera_files import load_cameras
-from jaxgenus._pairing import pair_images
-from jaxgenus._topology import (
-    MeshReport,
     component_genera,
     connected_components,
     euler_characteristic,
+    face_normals,
     genus,
+    genus_primitive,
+    inversion_penalty,
     is_closed_manifold,
+    load_mesh,
+    look_at,
+    Mesh,
     mesh_report,
+    MeshReport,
+    project,
+    remesh,
+    remesh_in_jit,
+    RemeshInfo,
+    RemeshOptions,
+    RemeshStatus,
+    save_mesh,
+    sphere_cameras,
+    uniform_laplacian,
+    UniformLaplacian,
+    vertex_normals,
 )
-from jaxgenus._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
-from jaxgenus._primitives import genus_primitive
-from jaxgenus import metrics
-from jaxgenus._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
-from jaxgenus._plan import RasterPlan, plan_render, static_plan
-from jaxgenus._render import CHANNEL_SIZES, RenderInfo, render
-from jaxgenus._handles import HandleCandidate, handle_candidates, normal_image_loss, open_handles
-from jaxgenus._shading import (LIGHTING_SHAPE, LIGHTING_SHAPES, directional_lighting, face_colors, irradiance,
-                               lighting_model, render_photo)
-from jaxgenus._carving import carving_term
-from jaxgenus._containment import containment_penalty, outside_distance
-from jaxgenus._energies import bilaplacian_energy, inversion_penalty
-from jaxgenus._loss import LossWeights, image_loss, objective, render_channels
-from jaxgenus._largesteps import (
-    SolveInfo,
+from jaxgenus.rendering import (
+    directional_lighting,
+    face_colors,
+    irradiance,
+    lighting_model,
+    plan_render,
+    RasterPlan,
+    render,
+    render_photo,
+    RenderInfo,
+    static_plan,
+)
+from jaxgenus.capture import (
+    load_cameras,
+    load_images,
+    LoadedImages,
+    pair_images,
+    visual_hull,
+)
+from jaxgenus.optim import (
+    Appearance,
+    carving_term,
+    containment_penalty,
     from_differential,
+    GradientTransformation,
+    image_loss,
+    init_optimizer_state,
     lambda_from_alpha,
     largesteps_solve,
-    to_differential,
-)
-from jaxgenus._adam import GradientTransformation, UniformAdamState, uniform_adam
-from jaxgenus._optimize import (
-    RECORD_KEYS,
-    Appearance,
+    LossWeights,
+    objective,
+    optimize_block,
     OptimizeOptions,
     OptimizerState,
-    init_optimizer_state,
-    optimize_block,
+    outside_distance,
+    render_channels,
+    SolveInfo,
+    to_differential,
+    uniform_adam,
+    UniformAdamState,
 )
-from jaxgenus._options import ReconstructOptions
-from jaxgenus._history import CycleRecord, History
-from jaxgenus._reconstruct import Reconstruction, reconstruct
-from jaxgenus._hull import visual_hull
-from jaxgenus._scenes import SCENES, builtin_scene, render_targets
+from jaxgenus.pipeline import (
+    builtin_scene,
+    CycleRecord,
+    handle_candidates,
+    HandleCandidate,
+    History,
+    normal_image_loss,
+    open_handles,
+    reconstruct,
+    Reconstruction,
+    ReconstructOptions,
+    render_targets,
+    SCENES,
+)
 
 try:
     __version__ = _version("jaxgenus")
@@ -73,56 +112,34 @@ except _PackageNotFoundError:  # imported from a source tree that was never inst
 
 __all__ = [
     "Appearance",
-    "CHANNEL_SIZES",
-    "Cameras",
-    "CycleRecord",
-    "GradientTransformation",
-    "HandleCandidate",
-    "History",
-    "LIGHTING_SHAPE",
-    "LIGHTING_SHAPES",
-    "LoadedImages",
-    "LossWeights",
-    "Mesh",
-    "MeshReport",
-    "OptimizeOptions",
-    "OptimizerState",
-    "RECORD_KEYS",
-    "RasterPlan",
-    "ReconstructOptions",
-    "Reconstruction",
-    "RemeshInfo",
-    "RemeshOptions",
-    "RemeshStatus",
-    "RenderInfo",
-    "SCENES",
-    "SolveInfo",
-    "UniformAdamState",
-    "UniformLaplacian",
     "bilaplacian_energy",
     "builtin_scene",
+    "Cameras",
     "cameras_from_blender",
     "cameras_from_opencv",
     "cameras_from_opengl",
     "cameras_to_opencv",
     "cameras_to_opengl",
-    "directional_lighting",
-    "capacity_bucket",
     "carving_term",
     "component_genera",
     "connected_components",
     "containment_penalty",
+    "CycleRecord",
+    "directional_lighting",
     "euler_characteristic",
     "face_colors",
     "face_normals",
     "from_differential",
     "genus",
-    "handle_candidates",
     "genus_primitive",
+    "GradientTransformation",
+    "handle_candidates",
+    "HandleCandidate",
+    "History",
     "image_loss",
-    "irradiance",
     "init_optimizer_state",
     "inversion_penalty",
+    "irradiance",
     "is_closed_manifold",
     "lambda_from_alpha",
     "largesteps_solve",
@@ -130,30 +147,46 @@ __all__ = [
     "load_cameras",
     "load_images",
     "load_mesh",
+    "LoadedImages",
     "look_at",
+    "LossWeights",
+    "Mesh",
     "mesh_report",
-    "metrics",
+    "MeshReport",
     "normal_image_loss",
     "objective",
     "open_handles",
-    "outside_distance",
     "optimize_block",
+    "OptimizeOptions",
+    "OptimizerState",
+    "outside_distance",
     "pair_images",
     "plan_render",
-    "static_plan",
     "project",
+    "RasterPlan",
     "reconstruct",
+    "Reconstruction",
+    "ReconstructOptions",
     "remesh",
     "remesh_in_jit",
+    "RemeshInfo",
+    "RemeshOptions",
+    "RemeshStatus",
     "render",
     "render_channels",
     "render_photo",
     "render_targets",
+    "RenderInfo",
     "save_mesh",
+    "SCENES",
+    "SolveInfo",
     "sphere_cameras",
+    "static_plan",
     "to_differential",
     "uniform_adam",
     "uniform_laplacian",
+    "UniformAdamState",
+    "UniformLaplacian",
     "vertex_normals",
     "visual_hull",
 ]

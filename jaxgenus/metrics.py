@@ -3,9 +3,8 @@
 The evaluation protocol that combines them is described in docs/metrics.md.
 """
 
-from jaxgenus import _betti, _metrics
-from jaxgenus._betti import Betti, HandlePlacement, betti_numbers, handle_placement, voxelize
-from jaxgenus._metrics import (
+from jaxgenus.geometry import Betti, HandlePlacement, betti_numbers, handle_placement, voxelize
+from jaxgenus.geometry import (
     ChamferResult,
     ICPResult,
     Normalization,
@@ -16,4 +15,18 @@ from jaxgenus._metrics import (
     volume_iou,
 )
 
-__all__ = list(_metrics.__all__) + list(_betti.__all__)
+__all__ = [
+    "Betti",
+    "ChamferResult",
+    "HandlePlacement",
+    "ICPResult",
+    "Normalization",
+    "betti_numbers",
+    "chamfer_distance",
+    "handle_placement",
+    "hausdorff_distance",
+    "icp_align",
+    "normalize_to_unit_sphere",
+    "volume_iou",
+    "voxelize",
+]

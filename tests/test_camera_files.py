@@ -18,7 +18,7 @@ from PIL import Image
 from scipy.spatial.transform import Rotation
 
 import jaxgenus as jg
-from jaxgenus._camera_files import load_cameras
+from jaxgenus.capture._camera_files import load_cameras
 
 H, W = 480, 640
 TOL_PX = 0.01

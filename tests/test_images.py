@@ -1,4 +1,4 @@
-"""Reading images as users have them (jaxgenus._images): formats, masks, targets; pairing (jaxgenus._pairing)."""
+"""Reading images as users have them (jaxgenus.capture._images): formats, masks, targets; pairing (jaxgenus.capture._pairing)."""
 
 import os
 import struct
@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from jaxgenus._images import BACKGROUND_THRESHOLD, infer_targets, load_images
-from jaxgenus._pairing import pair_images
+from jaxgenus.capture._images import BACKGROUND_THRESHOLD, infer_targets, load_images
+from jaxgenus.capture._pairing import pair_images
 
 RNG = np.random.default_rng(0)
 
@@ -418,7 +418,7 @@ def test_pair_by_name_with_shuffled_camera_names():
 
 
 def test_pair_order_applies_to_cameras():
-    from jaxgenus._cameras import sphere_cameras
+    from jaxgenus.geometry._cameras import sphere_cameras
 
     cams = sphere_cameras(3, resolution=8)
     order, _ = pair_images(["b", "c", "a"], ["a.png", "b.png", "c.png"])

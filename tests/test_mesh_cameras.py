@@ -53,12 +53,12 @@ def test_mesh_bad_input():
 
 
 def test_capacity_bucket_grows_geometrically():
-    caps = sorted({jg.capacity_bucket(n)[1] for n in range(1, 100_000, 97)})
+    caps = sorted({jg.geometry.capacity_bucket(n)[1] for n in range(1, 100_000, 97)})
     assert caps[0] == 256
     ratios = np.array(caps[1:]) / np.array(caps[:-1])
     assert np.all((ratios > 1.3) & (ratios < 1.6))
     for n in (1, 255, 256, 257, 5000, 99_999):
-        vcap, fcap = jg.capacity_bucket(n)
+        vcap, fcap = jg.geometry.capacity_bucket(n)
         assert fcap >= n and vcap == fcap // 2 + 2
 
 

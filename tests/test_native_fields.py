@@ -17,8 +17,8 @@ import pytest
 
 import jaxgenus as jg
 from jaxgenus._ffi import native
-from jaxgenus._remesh import _PYTHON_ONLY_OPTIONS, RemeshInfo, RemeshOptions
-from jaxgenus._topology import MeshReport
+from jaxgenus.geometry._remesh import _PYTHON_ONLY_OPTIONS, RemeshInfo, RemeshOptions
+from jaxgenus.geometry._topology import MeshReport
 
 # RemeshInfo fields filled by the caller, not from the info vector.
 _INFO_EXTRAS = {"attributes", "target_edge_length", "message"}

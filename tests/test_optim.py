@@ -380,8 +380,8 @@ def test_fixed_topology_fit_sphere_to_ellipsoid():
     for _ in range(4):
         state, rec = jg.optimize_block(state, cams, targets, n_steps=30, options=opts)
         records.append(jax.tree.map(np.asarray, rec))
-    rec = {k: np.concatenate([r[k] for r in records]) for k in jg.RECORD_KEYS}
-    assert all(rec[k].shape == (120,) for k in jg.RECORD_KEYS)
+    rec = {k: np.concatenate([r[k] for r in records]) for k in jg.optim.RECORD_KEYS}
+    assert all(rec[k].shape == (120,) for k in jg.optim.RECORD_KEYS)
     assert np.all(rec["status"] == 0) and np.all(np.isfinite(rec["loss"]))
     np.testing.assert_allclose(rec["loss"], rec["alpha"] + rec["normal"] + rec["inversion"], rtol=1e-5)
     rendered = jg.render(state.mesh, cams, channels=("alpha", "normal"), plan=plan)
@@ -401,7 +401,7 @@ def test_fixed_topology_fit_sphere_to_ellipsoid():
 
 
 def test_optimize_block_compiles_once_per_bucket_and_samples_views():
-    from jaxgenus._optimize import optimize_block_compilations
+    from jaxgenus.optim._optimize import optimize_block_compilations
 
     mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
     opts = jg.OptimizeOptions(learning_rate=0.05, renderer=soft_silhouette, views_per_step=2)

@@ -1,8 +1,9 @@
-"""The package's structure: public surface, version, module sizes, imports and dependencies."""
+"""The package's structure: public surface, version, layers, module and function sizes, imports, dependencies."""
 
 from __future__ import annotations
 
 import ast
+import dataclasses
 import importlib.metadata
 import re
 import types
@@ -11,24 +12,76 @@ from pathlib import Path
 import jaxgenus as jg
 
 PACKAGE = Path(jg.__file__).parent
-MODULES = sorted(PACKAGE.glob("*.py"))
+MODULES = sorted(PACKAGE.rglob("*.py"))
+# the layers, each importing only from the ones it names (and from the top-level `_ffi`)
+LAYERS = {
+    "geometry": set(),
+    "rendering": {"geometry"},
+    "capture": {"geometry"},
+    "optim": {"geometry", "rendering"},
+    "pipeline": {"geometry", "rendering", "capture", "optim"},
+}
+SUBPACKAGES = sorted(p.parent.name for p in PACKAGE.glob("*/__init__.py"))
+
+
+def _layer(path: Path) -> str | None:
+    rel = path.relative_to(PACKAGE).parts
+    return rel[0] if len(rel) == 2 else None
 
 
 def test_all_lists_exactly_the_public_names():
     assert len(jg.__all__) == len(set(jg.__all__))
     assert [n for n in jg.__all__ if not hasattr(jg, n)] == []
     public = {n for n in dir(jg) if not n.startswith("_")}
-    modules = {n for n in public if isinstance(getattr(jg, n), types.ModuleType) and n != "metrics"}
+    modules = {n for n in public if isinstance(getattr(jg, n), types.ModuleType)}
+    assert modules == set(SUBPACKAGES) | {"metrics"}
     assert public - modules == set(jg.__all__)
+    # plumbing stays in its room
+    assert not {"RECORD_KEYS", "CHANNEL_SIZES", "capacity_bucket", "LIGHTING_SHAPE"} & set(jg.__all__)
+
+
+def test_every_subpackage_lists_what_it_exports():
+    for name in SUBPACKAGES:
+        sub = getattr(jg, name)
+        assert sorted(sub.__all__) == sorted(n for n in dir(sub) if not n.startswith("_")
+                                             and not isinstance(getattr(sub, n), types.ModuleType)), name
 
 
 def test_version_is_the_installed_metadata():
     assert jg.__version__ == importlib.metadata.version("jaxgenus")
 
 
-def test_no_module_over_450_lines():
-    sizes = {p.name: len(p.read_text().splitlines()) for p in MODULES}
+def test_layers_and_sizes():
+    assert set(SUBPACKAGES) == set(LAYERS)
+    top = [p.name for p in PACKAGE.glob("*.py")]
+    assert len(top) <= 6, top
+    for name in SUBPACKAGES:
+        modules = [p for p in (PACKAGE / name).glob("*.py") if p.name != "__init__.py"]
+        assert len(modules) <= 12, (name, len(modules))
+    sizes = {str(p.relative_to(PACKAGE)): len(p.read_text().splitlines()) for p in MODULES}
     assert {k: v for k, v in sizes.items() if v > 450} == {}
+
+
+def _code_lines(path: Path, node) -> int:
+    """Lines of a function's body that hold code (docstring, blank lines and comments excluded)."""
+    body = node.body
+    if isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+        body = body[1:]
+    if not body:
+        return 0
+    lines = path.read_text().splitlines()[body[0].lineno - 1: node.end_lineno]
+    return sum(1 for line in lines if line.strip() and not line.strip().startswith("#"))
+
+
+def test_no_function_over_80_lines():
+    long = []
+    for path in MODULES:
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                n = _code_lines(path, node)
+                if n > 80:
+                    long.append(f"{path.relative_to(PACKAGE)}:{node.lineno} {node.name} ({n} lines)")
+    assert long == []
 
 
 def _imports(path: Path):
@@ -41,16 +94,31 @@ def _imports(path: Path):
                 yield a.name, []
 
 
-def test_no_private_name_is_imported_across_modules():
+def test_no_private_name_crosses_a_module_and_layers_point_down():
     bad = []
     for path in MODULES:
+        me = _layer(path)
         for module, names in _imports(path):
-            if module.startswith("jaxgenus"):
-                # a private module (`from jaxgenus import _colmap`) is fine, a private name in one is not
-                bad += [f"{path.name}: from {module} import {n}" for n in names
-                        if n.startswith("_") and not (module == "jaxgenus" and (PACKAGE / f"{n}.py").exists())
-                        and n != "_native"]
+            if not module.startswith("jaxgenus"):
+                continue
+            parts = module.split(".")
+            if me is not None and len(parts) > 1 and parts[1] in LAYERS and parts[1] != me:
+                if parts[1] not in LAYERS[me]:
+                    bad.append(f"{path.name} ({me}) imports the layer above it: {module}")
+                if len(parts) > 2:  # another room's private module
+                    bad.append(f"{path.name} ({me}) reaches into {module}")
+            # a sibling private module (`from jaxgenus.capture import _colmap`) is fine, a private name is not
+            siblings = {p.stem for p in (PACKAGE / Path(*parts[1:])).glob("_*.py")} if len(parts) <= 2 else set()
+            bad += [f"{path.name}: from {module} import {n}" for n in names
+                    if n.startswith("_") and n not in siblings and n not in ("_native", "_ffi")]
     assert bad == []
+
+
+def test_reconstruct_options_compose_rather_than_copy():
+    own = {f.name for f in dataclasses.fields(jg.ReconstructOptions)}
+    for part in (jg.OptimizeOptions, jg.RemeshOptions, jg.LossWeights, jg.RenderSettings):
+        repeated = own & {f.name for f in dataclasses.fields(part)}
+        assert repeated == set(), (part.__name__, repeated)
 
 
 def test_every_declared_runtime_dependency_is_imported():

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import jaxgenus as jg
-from jaxgenus import _loss
+from jaxgenus.optim import _loss
 from _raycast import raycast, raycast_lambert
 
 
@@ -31,7 +31,7 @@ def _sphere_points(n=40000):
 def test_lighting_convention_mean_one_and_sh_of_a_directional_light_close_to_exact():
     n = _sphere_points()
     rng = np.random.default_rng(0)
-    lighting = rng.normal(size=jg.LIGHTING_SHAPE)
+    lighting = rng.normal(size=jg.rendering.LIGHTING_SHAPE)
     e = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(lighting)))
     assert np.allclose(e.mean(axis=0), 1.0, atol=1e-3)  # every basis function has mean 0
     d = np.array([0.4, 0.8, 0.45])
@@ -65,7 +65,7 @@ def test_directional_model_is_exact_for_one_lamp_plus_ambient():
         exact = (a + (1 - a) * np.maximum(n @ (np.asarray(d) / np.linalg.norm(d)), 0.0)) / m
         assert np.abs(mixed[:, c] - exact).max() < 1e-5
     assert np.allclose(np.asarray(jg.irradiance(jnp.asarray(n[:5]), jnp.zeros((3, 3)))), 1.0)
-    assert jg.lighting_model(np.zeros(jg.LIGHTING_SHAPE)) == "sh"
+    assert jg.lighting_model(np.zeros(jg.rendering.LIGHTING_SHAPE)) == "sh"
     with pytest.raises(ValueError, match="model"):
         jg.directional_lighting((0, 0, 1), 0.2, model="point")
     with pytest.raises(ValueError, match="options.lighting"):

@@ -13,7 +13,7 @@ import trimesh
 from scipy import ndimage
 
 import jaxgenus
-from jaxgenus import _primitives
+from jaxgenus.geometry import _primitives
 
 SWEEP_FACES = 2000
 

@@ -10,7 +10,7 @@ import trimesh
 from jax.test_util import check_grads
 
 import jaxgenus as jg
-from jaxgenus._projection import projected_faces
+from jaxgenus.rendering._projection import projected_faces
 
 
 def _scene(n_views=3, z_shift=0.0):

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import pytest
 
 import jaxgenus as jg
-from jaxgenus import _pyramid
+from jaxgenus.optim import _pyramid
 
 
 def test_resolution_factors():

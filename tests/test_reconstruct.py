@@ -163,7 +163,7 @@ def test_a_refit_that_fits_worse_is_dropped(torus_scene, monkeypatch):
     keeps the first fit (same mesh), says why, and counts the refit's time."""
     import equinox as eqx
 
-    import jaxgenus._reconstruct as R
+    import jaxgenus.pipeline._reconstruct as R
 
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=60, initial_faces=800, max_faces=3000)
@@ -194,7 +194,7 @@ def test_a_refit_that_fits_worse_is_dropped(torus_scene, monkeypatch):
 def test_default_refits_stop_when_a_refit_gains_little(torus_scene, monkeypatch):
     """Default refits (64² images over a 32 px coarse level: two) stop after a refit that
     lowers the normal error by less than the threshold; an explicit count does not."""
-    import jaxgenus._reconstruct as R
+    import jaxgenus.pipeline._reconstruct as R
 
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=20, initial_faces=800, max_faces=3000,
@@ -212,7 +212,7 @@ def test_default_refits_stop_when_a_refit_gains_little(torus_scene, monkeypatch)
 
 
 def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
-    from jaxgenus._start import drill_tunnels
+    from jaxgenus.pipeline._start import drill_tunnels
 
     sphere = jg.genus_primitive(0, n_faces=3000)
     v, f = sphere.to_numpy()
@@ -282,8 +282,8 @@ def _torus(major, minor):
 
 def test_hull_thickness_matches_a_torus_tube_radius():
     """2 V / A of a torus is its tube radius: the hull's measure, in pixels, against it."""
-    from jaxgenus._frame import pixel_footprint
-    from jaxgenus._hull import hull_thickness, visual_hull_bounds
+    from jaxgenus.capture._frame import pixel_footprint
+    from jaxgenus.capture._hull import hull_thickness, visual_hull_bounds
 
     cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
     for minor in (0.05, 0.25):

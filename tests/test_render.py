@@ -37,7 +37,7 @@ def _rel(a, b):
 
 def _value_and_grad(mesh, cams, channels=ALL, **kw):
     """Image, loss and vertex gradient of a random linear loss, in one pass."""
-    c = sum(jg.CHANNEL_SIZES[x] for x in channels)
+    c = sum(jg.rendering.CHANNEL_SIZES[x] for x in channels)
     w = _weights((len(cams), cams.height, cams.width, c))
 
     def loss(v):
@@ -62,7 +62,7 @@ def _value_and_grad(mesh, cams, channels=ALL, **kw):
 def test_matches_dense_reference(channels, cull, sigma, gamma):
     mesh = _sphere()
     cams = jg.sphere_cameras(2, radius=4.0, resolution=24)
-    c = sum(jg.CHANNEL_SIZES[x] for x in channels)
+    c = sum(jg.rendering.CHANNEL_SIZES[x] for x in channels)
     w = _weights((2, 24, 24, c))
     kw = dict(channels=channels, sigma=sigma, gamma=gamma)
     plan = jg.plan_render(mesh, cams, sigma=sigma, cull_backfaces=cull)

@@ -9,9 +9,9 @@ import pytest
 import trimesh
 
 import jaxgenus as jg
-from jaxgenus import _faces
-from jaxgenus._splat import SplatConfig, Tier, splat
-from jaxgenus._splat_native import splat_all
+from jaxgenus.rendering import _faces
+from jaxgenus.rendering._splat import SplatConfig, Tier, splat
+from jaxgenus.rendering._splat_native import splat_all
 
 RES = 24
 # (attrs, want_depth): cov only; cov + normal; cov + normal + shaded + depth
@@ -29,7 +29,7 @@ def _scene(dtype, attrs, want_depth, sigma=0.7, gamma=0.02):
     fs = _faces.face_setup(
         mesh, cams, sigma=sigma, znear=1e-4, cull=True, attrs=attrs, light=None, ambient=0.3
     )
-    n_attr = sum(jg.CHANNEL_SIZES[a] for a in attrs)
+    n_attr = sum(jg.rendering.CHANNEL_SIZES[a] for a in attrs)
     bg = tuple(0.1 * (i + 1) for i in range(n_attr + int(want_depth)))
     cfg = SplatConfig(
         height=RES, width=RES, windows=(RES,), sigma=sigma, gamma=gamma, want_cov=True,

@@ -1,0 +1,26 @@
+"""Inputs as users have them: images and masks, camera files (OpenCV, COLMAP, NeRF, IDR/NeuS,
+Middlebury), pairing of images with cameras, validated targets, the visual hull and the canonical
+frame. Depends on `geometry` only.
+"""
+
+from jaxgenus.capture._camera_files import load_cameras
+from jaxgenus.capture._frame import pixel_footprint, scene_frame
+from jaxgenus.capture._hull import hull_thickness, largest_component, visual_hull, visual_hull_bounds
+from jaxgenus.capture._images import LoadedImages, load_images
+from jaxgenus.capture._pairing import pair_images
+from jaxgenus.capture._targets import Targets, check_targets
+
+__all__ = [
+    "LoadedImages",
+    "Targets",
+    "check_targets",
+    "hull_thickness",
+    "largest_component",
+    "load_cameras",
+    "load_images",
+    "pair_images",
+    "pixel_footprint",
+    "scene_frame",
+    "visual_hull",
+    "visual_hull_bounds",
+]

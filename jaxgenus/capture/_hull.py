@@ -1,0 +1,184 @@
+"""The silhouettes' visual hull: its bounds, its mesh, and measurements of it.
+
+Host-side numpy and manifold3d (outside `jit`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from jaxgenus.geometry import Cameras
+from jaxgenus.geometry import Mesh
+from jaxgenus.capture._targets import check_targets
+from jaxgenus.geometry import connected_components
+
+__all__ = ["carved_points", "hull_thickness", "largest_component", "visual_hull", "visual_hull_bounds"]
+
+
+def visual_hull_bounds(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds `(lo, hi)` of the visual hull of silhouettes `alpha (N, H, W)`.
+
+    The bounding box of `carved_points`, grown by one grid cell. Host-side numpy.
+    """
+    pts, cell = carved_points(alpha, cams, resolution=resolution)
+    return pts.min(0) - cell, pts.max(0) + cell
+
+
+def carved_points(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, float]:
+    """The points of a `resolution^3` grid inside the visual hull of `alpha (N, H, W)`, and the grid step.
+
+    The grid spans the region every camera sees (around the least-squares
+    intersection of the optical axes); a point survives when it projects inside
+    the silhouette (alpha >= 0.5) of every view. Raises `ValueError` when none does.
+    """
+    alpha = np.asarray(alpha, np.float32)
+    rot = np.asarray(cams.rotation, np.float64)
+    trans = np.asarray(cams.translation, np.float64)
+    centers = -np.einsum("nji,nj->ni", rot, trans)
+    axes = rot[:, 2, :]
+    # point closest to all optical axes: sum (I - d d^T) (p - c) = 0
+    proj = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    a = proj.sum(0)
+    b = np.einsum("nij,nj->i", proj, centers)
+    centre = np.linalg.lstsq(a, b, rcond=None)[0]
+    dist = np.linalg.norm(centers - centre, axis=1)
+    half_fov = np.arctan(0.5 * min(cams.height, cams.width) / np.asarray(cams.focal).max())
+    radius = float(dist.min() * np.sin(half_fov) * 1.05)
+    ticks = np.linspace(-radius, radius, resolution)
+    grid = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), -1).reshape(-1, 3) + centre
+    inside = np.ones(len(grid), bool)
+    focal = np.asarray(cams.focal, np.float64)
+    pp = np.asarray(cams.principal_point, np.float64)
+    h, w = cams.height, cams.width
+    for i in range(len(cams)):
+        xc = grid @ rot[i].T + trans[i]
+        z = np.maximum(xc[:, 2], 1e-9)
+        u = np.floor(xc[:, 0] / z * focal[i, 0] + pp[i, 0]).astype(np.int64)
+        v = np.floor(xc[:, 1] / z * focal[i, 1] + pp[i, 1]).astype(np.int64)
+        ok = (xc[:, 2] > 1e-9) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        hit = np.zeros(len(grid), bool)
+        hit[ok] = alpha[i, v[ok], u[ok]] >= 0.5
+        inside &= hit
+    if not inside.any():
+        raise ValueError("images: the silhouettes are inconsistent with cams (their visual hull is empty): are the "
+                         "images paired with the right cameras, and do the intrinsics match the images' size?")
+    return grid[inside], 2.0 * radius / (resolution - 1)
+
+
+def _hull_occupancy(alpha: np.ndarray, cams: Cameras, points: np.ndarray) -> np.ndarray:
+    """Soft visual-hull occupancy of `points (P, 3)`: the minimum over views of the
+    bilinearly interpolated silhouette at their projections (0 outside an image)."""
+    rot = np.asarray(cams.rotation, np.float64)
+    trans = np.asarray(cams.translation, np.float64)
+    focal = np.asarray(cams.focal, np.float64)
+    pp = np.asarray(cams.principal_point, np.float64)
+    h, w = cams.height, cams.width
+    occ = np.ones(len(points))
+    for i in range(len(cams)):
+        xc = points @ rot[i].T + trans[i]
+        front = xc[:, 2] > 1e-9
+        z = np.where(front, xc[:, 2], 1.0)
+        # pixel centres sit at +0.5: continuous coordinates of the sample grid
+        u = xc[:, 0] / z * focal[i, 0] + pp[i, 0] - 0.5
+        v = xc[:, 1] / z * focal[i, 1] + pp[i, 1] - 0.5
+        ok = front & (u > -1) & (u < w) & (v > -1) & (v < h)
+        u, v = np.clip(u, -1, w), np.clip(v, -1, h)
+        u0, v0 = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
+        fu, fv = u - u0, v - v0
+        pad = np.pad(alpha[i], 1)  # index shift by 1: sample -1 and w are background
+        def at(r, c):
+            return pad[np.clip(r + 1, 0, h + 1), np.clip(c + 1, 0, w + 1)]
+        val = ((1 - fv) * ((1 - fu) * at(v0, u0) + fu * at(v0, u0 + 1))
+               + fv * ((1 - fu) * at(v0 + 1, u0) + fu * at(v0 + 1, u0 + 1)))
+        occ = np.minimum(occ, np.where(ok, val, 0.0))
+    return occ
+
+
+def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0):
+    """Watertight `Mesh` of the visual hull of the silhouettes in `images`.
+
+    `images` as in `reconstruct` (`(N, H, W, 4)` RGBA or `(N, H, W)` alpha). The soft
+    occupancy (minimum over views of the bilinearly sampled silhouette) is
+    sampled on a grid of `resolution` cells along the longest side of
+    `visual_hull_bounds`; `closing > 0` applies a grey-level morphological closing
+    with a ball of that many cells (fills thin spurious tunnels left by carving,
+    and real holes that thin). Its 0.5 level set is extracted with manifold3d's
+    marching tetrahedra, so the mesh is a closed manifold; it may have several
+    components, and holes thinner than about a grid cell close up. Host-side.
+    """
+    import manifold3d
+
+    alpha = check_targets(images, cams).alpha
+    if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
+        raise ValueError(f"resolution must be an int >= 8, got {resolution!r}")
+    if isinstance(closing, bool) or not isinstance(closing, int) or closing < 0:
+        raise ValueError(f"closing must be an int >= 0, got {closing!r}")
+    lo, hi = visual_hull_bounds(alpha, cams)
+    cell = float((hi - lo).max()) / resolution
+    lo, hi = lo - 2 * cell, hi + 2 * cell
+    shape = np.ceil((hi - lo) / cell).astype(int) + 1
+    axes = [lo[d] + cell * np.arange(shape[d]) for d in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    occ = _hull_occupancy(alpha, cams, grid).reshape(shape)
+    if closing:
+        from scipy import ndimage
+
+        ball = np.linalg.norm(np.mgrid[-closing : closing + 1, -closing : closing + 1, -closing : closing + 1], axis=0)
+        occ = ndimage.grey_closing(occ, footprint=ball <= closing + 1e-9)
+    occ = occ - 0.5
+    occ[0, :, :] = occ[-1, :, :] = occ[:, 0, :] = occ[:, -1, :] = occ[:, :, 0] = occ[:, :, -1] = -0.5
+    flat = occ.ravel().tolist()
+    nx, ny, nz = (int(s) for s in shape)
+    sy, sx = nz, ny * nz
+    x0, y0, z0 = (float(c) for c in lo)
+    inv = 1.0 / cell
+
+    def field(x, y, z):  # trilinear interpolation of the grid; one Python call per point
+        fx, fy, fz = (x - x0) * inv, (y - y0) * inv, (z - z0) * inv
+        i, j, k = int(fx), int(fy), int(fz)
+        if i < 0 or j < 0 or k < 0 or i >= nx - 1 or j >= ny - 1 or k >= nz - 1:
+            return -0.5
+        fx, fy, fz = fx - i, fy - j, fz - k
+        b = i * sx + j * sy + k
+        c00 = flat[b] * (1 - fz) + flat[b + 1] * fz
+        c01 = flat[b + sy] * (1 - fz) + flat[b + sy + 1] * fz
+        c10 = flat[b + sx] * (1 - fz) + flat[b + sx + 1] * fz
+        c11 = flat[b + sx + sy] * (1 - fz) + flat[b + sx + sy + 1] * fz
+        return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+
+    m = manifold3d.Manifold.level_set(field, [*lo, *hi], cell)
+    mesh = m.to_mesh()
+    v = np.asarray(mesh.vert_properties, np.float32)[:, :3]
+    f = np.asarray(mesh.tri_verts, np.int32)
+    if len(f) == 0:
+        raise ValueError("images: the visual hull is empty at this resolution")
+    return Mesh.from_numpy(v, f)
+
+
+def largest_component(mesh: Mesh) -> Mesh:
+    """The connected component of `mesh` with the most faces (the mesh itself when it has one)."""
+    n, labels = connected_components(mesh)
+    if n == 1:
+        return mesh
+    v, f = mesh.to_numpy()
+    f = f[labels == np.bincount(labels).argmax()]
+    used, f = np.unique(f, return_inverse=True)
+    return Mesh.from_numpy(v[used], f.reshape(-1, 3))
+
+
+def hull_thickness(alpha, cams: Cameras, resolution: int, pixel: float) -> float:
+    """`2 * volume / area` of the largest piece of the visual hull, in units of `pixel` (inf if none).
+
+    A slab's thickness, a tube's radius: how thin the object looks to the cameras.
+    """
+    try:
+        v, f = largest_component(visual_hull(alpha, cams, resolution=resolution)).to_numpy()
+    except ValueError:
+        return math.inf
+    v = v.astype(np.float64)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+    volume = np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0
+    return float(2.0 * abs(volume) / area / pixel) if area > 0 else math.inf

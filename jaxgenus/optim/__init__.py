@@ -1,0 +1,53 @@
+"""The objective and its optimizer: loss terms (image, carving, containment), the image pyramid,
+large-steps solves, uniform Adam, and `optimize_block`. Depends on `geometry` and `rendering`.
+"""
+
+from jaxgenus.optim._adam import GradientTransformation, UniformAdamState, uniform_adam
+from jaxgenus.optim._carving import carving_term
+from jaxgenus.optim._containment import containment_penalty, outside_distance
+from jaxgenus.optim._largesteps import (
+    SolveInfo,
+    from_differential,
+    lambda_from_alpha,
+    largesteps_solve,
+    to_differential,
+)
+from jaxgenus.optim._loss import LossWeights, image_loss, objective, render_channels
+from jaxgenus.optim._optimize import (
+    Appearance,
+    OptimizeOptions,
+    OptimizerState,
+    RECORD_KEYS,
+    init_optimizer_state,
+    optimize_block,
+    optimize_steps,
+)
+from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras
+
+__all__ = [
+    "Appearance",
+    "GradientTransformation",
+    "LossWeights",
+    "OptimizeOptions",
+    "OptimizerState",
+    "RECORD_KEYS",
+    "SolveInfo",
+    "UniformAdamState",
+    "carving_term",
+    "containment_penalty",
+    "from_differential",
+    "image_loss",
+    "init_optimizer_state",
+    "lambda_from_alpha",
+    "largesteps_solve",
+    "objective",
+    "optimize_block",
+    "optimize_steps",
+    "outside_distance",
+    "pyramid_level",
+    "render_channels",
+    "resolution_factors",
+    "scaled_cameras",
+    "to_differential",
+    "uniform_adam",
+]

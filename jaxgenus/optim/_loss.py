@@ -1,0 +1,210 @@
+"""The inverse-rendering objective: image loss of the soft render plus the geometric energies.
+
+`objective` is `Phi(R(x)) + w_bilaplacian * bilaplacian_energy(x)
++ w_inversion * inversion_penalty(x, x_rest)`, where `Phi` is the l1
+`image_loss` between the soft render `R(x)` and the target images. A term whose
+weight is 0 is not computed at all (weights are static Python floats). This
+module sits above the renderer and the energies and combines them.
+
+Target images are `(N, H, W, 1)` silhouettes (alpha) or `(N, H, W, 4)` RGBA
+images whose RGB is the world normal mapped to `(n + 1) / 2` and whose A is the
+silhouette. The render is asked for exactly the channels the target has
+(`render_channels`): `("alpha",)` gives `(N, H, W, 1)` and `("alpha", "normal")`
+gives `(N, H, W, 4)` = alpha followed by the world normal in `[-1, 1]`.
+
+Photo targets (`appearance=(albedo, lighting)` given) are `(N, H, W, 4)` RGBA
+photographs; the render is `("alpha", "color")` with the Lambertian face colours
+of `jaxgenus.rendering._shading`, and the photometric term is a robust (Charbonnier) error
+of the colour where the target's mask is set. A clipped target value (0 or 1:
+the true value lies beyond it) only penalizes a render on its unclipped side, so
+saturated pixels pull no shading past their limit. The albedo smoothness term
+is the mean over the mesh's edges of `|albedo_i - albedo_j|^2`; it separates
+shading (which follows the normals) from texture (which it keeps smooth).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jaxgenus.optim._carving import carving_term
+from jaxgenus.optim._containment import containment_penalty
+from jaxgenus.geometry import bilaplacian_energy, inversion_penalty
+from jaxgenus.rendering import render
+from jaxgenus.rendering import face_colors
+
+__all__ = ["CLIP_LOW", "CLIP_HIGH", "LossWeights", "albedo_smoothness", "image_loss", "image_terms", "objective",
+           "render_channels"]
+
+#: Target photo values at or beyond these are clipped (under- / over-exposed): one-sided error.
+CLIP_LOW, CLIP_HIGH = 0.5 / 255.0, 254.5 / 255.0
+_CHARBONNIER = 1e-3
+
+
+@dataclasses.dataclass(frozen=True)
+class LossWeights:
+    """Static weights of the objective's terms (0 skips a term entirely).
+
+    Defaults: `alpha = 1`, `normal = 1` (each image term is a mean over the
+    pixels, so they are O(1) and resolution-independent), `bilaplacian = 0`
+    (the large-steps parametrization already smooths; raise it, e.g. to
+    `1e-2 / n_vertices`, to penalize curvature explicitly -- `||L x||^2` is a sum over
+    vertices), and `inversion = 1` (zero unless a triangle flips; one face
+    folded flat onto itself, `det J = -1`, costs as much as the whole image term
+    can). `photo` weighs the photometric term (photo targets; shading varies less
+    with the normal than a normal map does, and 6 was measured best among 1, 3, 6
+    and 10 on the kitten: CD 0.66x, 0.60x, 0.51x, 0.52x the silhouette-only run's);
+    `albedo_smoothness` the albedo's edge differences (photo targets; on the bunny,
+    1 lets a constant albedo take up shading (16-20 % spread, CD 0.81x), 100 flattens
+    a textured one (CD 0.79x), 20 does both cases: spread 3 %, texture correlation
+    0.97, CD 0.71x and 0.51x). Larger inversion weights also unfold every face, but the gradient
+    spike of a fold inflates uniform Adam's second moment, which then shrinks
+    all later steps (docs/stability.md: at lambda = 1, learning rate 0.5, the
+    image loss after 100 steps is 0.034 with weight 1 and 0.117 with weight 1e3).
+    `containment` weighs `containment_penalty` (pixels outside the target
+    silhouettes beyond a 1 px margin, Huber, summed over the sampled views, mean over the
+    vertices; `objective(..., outside=...)`, which `reconstruct` passes when the weight is
+    set). Off by default: at 0.1 it pulls back the slivers the soft silhouette gradient
+    barely sees (the thin gecko at 128²: CD 0.027 -> 0.011, no more spikes), but on the
+    gecko from 256² images the native cycle folded (inversion penalty 691) and ended at
+    IoU 0.23, and the heptoroid from 1024² fitted worse (CD 0.0021 -> 0.0033;
+    docs/reconstruction.md).
+    `carve` weighs `carving_term` (normal maps only: the visible surface moves away from the
+    camera where its normal is more than 37 degrees from the target's; value 0, a force).
+    Off here; `reconstruct` sets it in refits (`ReconstructOptions.refit_carve`).
+    """
+
+    alpha: float = 1.0
+    normal: float = 1.0
+    bilaplacian: float = 0.0
+    inversion: float = 1.0
+    photo: float = 6.0
+    albedo_smoothness: float = 20.0
+    containment: float = 0.0
+    carve: float = 0.0
+
+    def __post_init__(self):
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, (int, float)) or not v >= 0.0 or v == float("inf"):
+                raise ValueError(f"weights.{f.name} must be a finite Python float >= 0, got {v!r}")
+
+
+def render_channels(target: Float[Array, "N H W C"], photo: bool = False) -> tuple[str, ...]:
+    """The render channels a target needs: `("alpha",)` for C = 1, `("alpha", "normal")` for C = 4,
+    `("alpha", "color")` for photos."""
+    c = target.shape[-1]
+    if target.ndim != 4 or c not in (1, 4):
+        raise ValueError(f"target must have shape (N, H, W, 1) or (N, H, W, 4), got {target.shape}")
+    if photo and c != 4:
+        raise ValueError(f"photo targets must have shape (N, H, W, 4), got {target.shape}")
+    return ("alpha",) if c == 1 else ("alpha", "color" if photo else "normal")
+
+
+def _photo_error(rendered_rgb, target_rgb):
+    """Charbonnier error per channel; one-sided where the target is clipped."""
+    r = rendered_rgb - target_rgb
+    r = jnp.where(target_rgb >= CLIP_HIGH, jnp.minimum(r, 0.0), r)
+    r = jnp.where(target_rgb <= CLIP_LOW, jnp.maximum(r, 0.0), r)
+    return jnp.sqrt(r * r + _CHARBONNIER**2) - _CHARBONNIER
+
+
+def albedo_smoothness(albedo: Float[Array, "V 3"], mesh) -> Float[Array, ""]:
+    """Mean over the live faces' edges of `|albedo_i - albedo_j|^2`."""
+    a = albedo[mesh.faces]
+    d = jnp.sum((a - jnp.roll(a, 1, axis=1)) ** 2, axis=(1, 2))
+    m = mesh.face_mask
+    return jnp.sum(jnp.where(m, d, 0.0)) / (3.0 * jnp.maximum(jnp.sum(m), 1))
+
+
+def image_terms(rendered, target, weights: LossWeights, photo: bool = False) -> dict[str, Array]:
+    """The weighted image terms `{"alpha": ..., "normal" or "photo": ...}` (a term with weight 0 is absent)."""
+    render_channels(target, photo)
+    if rendered.shape != target.shape:
+        raise ValueError(f"rendered must have the target's shape {target.shape}, got {rendered.shape}")
+    terms = {}
+    if target.shape[-1] == 4:
+        t_alpha = target[..., 3]
+        if photo:
+            if weights.photo:
+                err = _photo_error(rendered[..., 1:4], target[..., :3])
+                terms["photo"] = weights.photo * jnp.mean(t_alpha[..., None] * err)
+        elif weights.normal:
+            err = jnp.abs(0.5 * (rendered[..., 1:4] + 1.0) - target[..., :3])
+            terms["normal"] = weights.normal * jnp.mean(t_alpha[..., None] * err)
+    else:
+        t_alpha = target[..., 0]
+    if weights.alpha:
+        terms["alpha"] = weights.alpha * jnp.mean(jnp.abs(rendered[..., 0] - t_alpha))
+    return terms
+
+
+def image_loss(
+    rendered: Float[Array, "N H W C"], target: Float[Array, "N H W C"], *, weights: LossWeights = LossWeights(),
+    photo: bool = False,
+) -> Float[Array, ""]:
+    """l1 image loss over the channels the target has.
+
+    `alpha`: mean over pixels of `|alpha - alpha_target|`. `normal` (RGBA targets
+    only): mean over pixels and the 3 channels of `A_target * |(n + 1) / 2 - RGB_target|`,
+    i.e. normals count only where the target alpha is set. Each is multiplied by
+    its weight in `weights`. `photo`: the target is an RGBA photo and `rendered`
+    holds alpha and colour; the colour term is the robust photometric error
+    (see the module doc) where the target alpha is set.
+    """
+    terms = image_terms(rendered, target, weights, photo)
+    return sum(terms.values(), jnp.zeros((), rendered.dtype))
+
+
+def objective(
+    mesh,
+    cameras,
+    target: Float[Array, "N H W C"],
+    rest_vertices: Float[Array, "V 3"],
+    *,
+    weights: LossWeights = LossWeights(),
+    renderer: Callable | None = None,
+    render_kwargs: dict | None = None,
+    appearance: tuple | None = None,
+    outside: Float[Array, "N H W"] | None = None,
+) -> tuple[Float[Array, ""], dict[str, Array]]:
+    """The total objective at `mesh.vertices` and its weighted terms.
+
+    Renders `mesh` with `renderer(mesh, cameras, channels=..., **render_kwargs)`
+    (default `jaxgenus.render`) for the channels `target` has, and returns
+    `(total, terms)` where `terms` holds the weighted `alpha`, `normal`,
+    `bilaplacian` and `inversion` values that were computed (weight 0: absent).
+    `appearance=(albedo (Vcap, 3), lighting (3, 24) or (3, 3))`: `target` is a photo, fitted
+    through Lambertian face colours (`photo` and `albedo_smoothness` terms).
+    `outside`: the targets' `outside_distance` maps (`(N, H, W)`, pixels), for the
+    `containment` term (`jaxgenus.optim._containment`); None skips it.
+    """
+    renderer = render if renderer is None else renderer
+    photo = appearance is not None
+    kw = dict(render_kwargs or {})
+    terms = {}
+    if photo:
+        albedo, lighting = appearance
+        kw["face_colors"] = face_colors(mesh, albedo, lighting)
+        if weights.albedo_smoothness:
+            terms["albedo_smoothness"] = weights.albedo_smoothness * albedo_smoothness(albedo, mesh)
+    colour = weights.photo if photo else weights.normal
+    carve = bool(weights.carve) and not photo and target.shape[-1] == 4
+    if weights.alpha or (colour and target.shape[-1] == 4) or carve:
+        channels = render_channels(target, photo) + (("depth",) if carve else ())
+        rendered = renderer(mesh, cameras, channels=channels, **kw)
+        if carve:
+            rendered, depth = rendered[..., :4], rendered[..., 4]
+            terms["carve"] = weights.carve * carving_term(rendered, depth, target)
+        terms.update(image_terms(rendered, target, weights, photo))
+    if weights.bilaplacian:
+        terms["bilaplacian"] = weights.bilaplacian * bilaplacian_energy(mesh.vertices, mesh.faces)
+    if weights.containment and outside is not None:
+        terms["containment"] = weights.containment * containment_penalty(mesh.vertices, mesh.vertex_mask, cameras,
+                                                                         outside)
+    if weights.inversion:
+        terms["inversion"] = weights.inversion * inversion_penalty(mesh.vertices, rest_vertices, mesh.faces)
+    return sum(terms.values(), jnp.zeros((), mesh.vertices.dtype)), terms

@@ -1,0 +1,377 @@
+"""`optimize_block`: n large-steps Adam steps as one jit-compiled `lax.scan`.
+
+The optimizer state keeps the vertices `x` (in its `mesh`), the uniform-Adam
+moments (in the `u = (I + lambda L) x` space), the rest vertices of the
+inversion penalty, a step counter and a PRNG key. Every per-vertex array is
+`(Vcap, 3)`, so a remesher can map the state onto a new mesh. `u` itself is not
+stored: a block starts from `u = (I + lambda L) x` and ends with `x` solved
+back from `u`, so `mesh.vertices` is always the current shape.
+
+One step: pick the views (all, or `views_per_step` random ones), evaluate the
+objective and its gradient at `x`, pull the gradient back to `u` by a solve,
+take a uniform-Adam step in `u`, and solve the new `x`. Both solves are
+warm-started (the new `x` at the old one, the pulled-back gradient at the
+previous step's). A step whose loss, gradient or update is not finite is skipped (state unchanged)
+and flagged with status 2; a solve that hit `cg_max_iter` is flagged with
+status 1. The record holds fixed-shape `(n_steps,)` arrays.
+
+`optimize_block` compiles once per capacity bucket (array shapes), number of
+steps and options; the state buffers are donated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float, Int, PRNGKeyArray
+
+from jaxgenus.optim._adam import UniformAdamState, adam as plain_adam, uniform_adam
+from jaxgenus.geometry import inverted_face_count
+from jaxgenus.optim._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
+from jaxgenus.optim._loss import LossWeights, objective, render_channels
+from jaxgenus.geometry import Mesh
+from jaxgenus.geometry import uniform_laplacian
+from jaxgenus.optim._pyramid import crop_views, target_boxes
+from jaxgenus.rendering import LIGHTING_SHAPE, lighting_model
+
+__all__ = [
+    "Appearance",
+    "OptimizeOptions",
+    "OptimizerState",
+    "RECORD_KEYS",
+    "init_optimizer_state",
+    "optimize_block",
+    "optimize_block_compilations",
+    "optimize_steps",
+]
+
+RECORD_KEYS = (
+    "loss",
+    "alpha",
+    "normal",
+    "bilaplacian",
+    "inversion",
+    "photo",
+    "albedo_smoothness",
+    "containment",
+    "grad_norm",
+    "cg_iterations_forward",
+    "cg_iterations_backward",
+    "cg_residual",
+    "inverted_faces",
+    "status",
+)
+"""Keys of the per-step record of `optimize_block`.
+
+`loss` and the weighted terms are evaluated at the step's starting `x` (a term
+that is switched off reads 0); `grad_norm` is `||d loss / d x||`;
+`cg_iterations_*` are the iterations of the gradient pull-back (backward) and
+of the new-`x` solve (forward); `cg_residual` is the larger true relative
+residual of the two; `inverted_faces` counts faces flipped relative to the rest
+shape after the step; `status` is 0 (ok), 1 (a solve hit `cg_max_iter`) or
+2 (non-finite loss, gradient or update: the step is skipped, the state unchanged)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class OptimizeOptions:
+    """Static settings of `optimize_block` (hashable; changing one recompiles).
+
+    Attributes:
+        learning_rate: uniform-Adam step size (in `u` space, about the distance a
+            vertex moves per step for smooth motions).
+        lambda_: large-steps `lambda` (19, as in Nicolet et al.).
+        b1, b2, eps: uniform-Adam parameters.
+        adam_quantile: quantile of the shared second moment (1: the max, Nicolet's;
+            see `uniform_adam`).
+        weights: `LossWeights` of the objective.
+        views_per_step: number of cameras sampled (without replacement) per step;
+            `None` uses all of them every step.
+        cg_rtol, cg_max_iter: stopping rule of the CG solves.
+        average: the block returns the exponential moving average of its iterates,
+            `x_avg <- average * x_avg + (1 - average) * x` after every step (from
+            the block's starting `x`), instead of the last iterate; 0 (default) is
+            off. About the last `1 / (1 - average)` steps are averaged, which
+            removes most of the step noise of sampled views at a fixed step size.
+        albedo_learning_rate, lighting_learning_rate: plain-Adam steps of the
+            per-vertex albedo and of the lighting (photo targets only).
+        crop: render a random `crop x crop` window of each sampled view, centred in
+            the target's silhouette box (`jaxgenus.optim._pyramid.crop_views`), instead of
+            the whole image; 0 (default) renders whole views. The cost of a step then
+            follows the crop, not the image size.
+        renderer: `renderer(mesh, cameras, channels=..., **render_kwargs)`;
+            `None` is `jaxgenus.render`.
+        render_kwargs: extra keyword arguments of the renderer as `(name, value)` pairs
+            (e.g. `(("sigma", 0.5), ("gamma", 0.01))`).
+    """
+
+    learning_rate: float = 3e-2
+    lambda_: float = DEFAULT_LAMBDA
+    b1: float = 0.9
+    b2: float = 0.999
+    eps: float = 1e-8
+    adam_quantile: float = 1.0
+    weights: LossWeights = LossWeights()
+    views_per_step: int | None = None
+    cg_rtol: float = 1e-6
+    cg_max_iter: int = 2000
+    average: float = 0.0
+    crop: int = 0
+    albedo_learning_rate: float = 1e-2
+    lighting_learning_rate: float = 5e-2
+    renderer: Callable | None = None
+    render_kwargs: tuple = ()
+
+    def __post_init__(self):
+        if not self.learning_rate > 0:
+            raise ValueError(f"learning_rate must be > 0, got {self.learning_rate}")
+        for name in ("albedo_learning_rate", "lighting_learning_rate"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+        if not self.lambda_ >= 0:
+            raise ValueError(f"lambda_ must be >= 0, got {self.lambda_}")
+        if self.views_per_step is not None and self.views_per_step < 1:
+            raise ValueError(f"views_per_step must be None or >= 1, got {self.views_per_step}")
+        if not (isinstance(self.average, (int, float)) and 0.0 <= self.average < 1.0):
+            raise ValueError(f"average must be in [0, 1), got {self.average!r}")
+        if not (isinstance(self.crop, int) and self.crop >= 0):
+            raise ValueError(f"crop must be an int >= 0, got {self.crop!r}")
+        if not isinstance(self.weights, LossWeights):
+            raise ValueError(f"weights must be a LossWeights, got {type(self.weights).__name__}")
+        if not isinstance(self.render_kwargs, tuple):
+            raise ValueError("render_kwargs must be a tuple of (name, value) pairs")
+
+    def adam(self):
+        return uniform_adam(self.learning_rate, self.b1, self.b2, self.eps, self.adam_quantile)
+
+
+class Appearance(eqx.Module):
+    """What a photometric fit estimates besides the shape (a PyTree; see `jaxgenus.render_photo`).
+
+    Attributes:
+        albedo: `(Vcap, 3)` per-vertex RGB albedo (>= 0), row for row with the mesh's vertices.
+        lighting: `(3, 24)` spherical-harmonic or `(3, 3)` directional lighting (`_shading`).
+        adam: plain-Adam state of `(albedo, lighting)`.
+    """
+
+    albedo: Float[Array, "V 3"]
+    lighting: Float[Array, "3 L"]
+    adam: UniformAdamState
+
+
+class OptimizerState(eqx.Module):
+    """State carried between `optimize_block` calls (a PyTree).
+
+    Attributes:
+        mesh: the current mesh; `mesh.vertices` is `x`.
+        adam: `UniformAdamState` with `(Vcap, 3)` moments of `u`.
+        rest_vertices: `(Vcap, 3)` shape at the last remesh (inversion penalty reference).
+        step: int32 steps taken since `init_optimizer_state`.
+        key: PRNG key for view sampling.
+        appearance: the albedo and lighting of a photometric fit (`Appearance`), else None.
+    """
+
+    mesh: Mesh
+    adam: UniformAdamState
+    rest_vertices: Float[Array, "V 3"]
+    step: Int[Array, ""]
+    key: PRNGKeyArray
+    appearance: Appearance | None = None
+
+
+def _owned_key(key):
+    """A copy of `key` (typed or raw uint32), so that donating a state leaves the caller's key alive."""
+    if jnp.issubdtype(jnp.asarray(key).dtype, jax.dtypes.prng_key):
+        return jax.random.wrap_key_data(jnp.array(jax.random.key_data(key)), impl=jax.random.key_impl(key))
+    return jnp.array(key)
+
+
+def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting=None) -> OptimizerState:
+    """A fresh state at a copy of `mesh` (zero moments, rest shape = current shape).
+
+    `albedo` (an RGB triple, or `(Vcap, 3)` per vertex) starts a photometric fit
+    (`Appearance`), with `lighting` `(3, 24)` or `(3, 3)` (`jaxgenus.lighting_model`;
+    default `(3, 24)` zeros: uniform white light).
+    The state owns its buffers, so donating it to `optimize_block` leaves `mesh` and `key` intact.
+    """
+    if not isinstance(mesh, Mesh):
+        raise ValueError(f"mesh must be a Mesh, got {type(mesh).__name__}")
+    appearance = None
+    if albedo is not None or lighting is not None:
+        dtype = mesh.vertices.dtype
+        a = jnp.asarray(0.5 if albedo is None else albedo, dtype)
+        a = jnp.broadcast_to(a, (mesh.vertex_capacity, 3)) if a.ndim <= 1 else a
+        if a.shape != (mesh.vertex_capacity, 3) or not bool(jnp.all(jnp.isfinite(a))) or bool(jnp.any(a < 0)):
+            raise ValueError(f"albedo must be finite, >= 0, an RGB triple or ({mesh.vertex_capacity}, 3); got shape {a.shape}")
+        a = jnp.where(mesh.vertex_mask[:, None], a, 0.0)
+        lt = jnp.zeros(LIGHTING_SHAPE, dtype) if lighting is None else jnp.asarray(lighting, dtype)
+        lighting_model(lt)
+        if not bool(jnp.all(jnp.isfinite(lt))):
+            raise ValueError("lighting must be finite")
+        appearance = Appearance(albedo=jnp.array(a), lighting=jnp.array(lt), adam=plain_adam(1.0).init((a, lt)))
+    return OptimizerState(
+        mesh=jax.tree.map(jnp.array, mesh),
+        adam=uniform_adam(1.0).init(mesh.vertices),
+        rest_vertices=jnp.array(mesh.vertices),
+        step=jnp.zeros((), jnp.int32),
+        key=_owned_key(key),
+        appearance=appearance,
+    )
+
+
+def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale,
+                   outside=None):
+    """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program)."""
+    mesh = state.mesh
+    laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
+    vmask = mesh.vertex_mask[:, None]
+    fmask = mesh.face_mask
+    lam = options.lambda_
+    adam = options.adam()
+    n_views = len(cameras)
+    k = options.views_per_step
+    avg = options.average
+    crop = options.crop if options.crop and options.crop < max(cameras.height, cameras.width) else 0
+    boxes = target_boxes(targets, margin=crop // 8) if crop else None
+
+    photo = state.appearance is not None
+    app_adam = plain_adam(1.0) if photo else None
+    app_lr = (options.albedo_learning_rate, options.lighting_learning_rate)
+
+    if crop:  # crops move the cameras' principal points: the whole-view maps no longer line up
+        outside = None
+
+    def loss_fn(x, app, cams, tgt, out):
+        m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
+        return objective(
+            m,
+            cams,
+            tgt,
+            state.rest_vertices,
+            weights=options.weights,
+            renderer=options.renderer,
+            render_kwargs=dict(options.render_kwargs),
+            appearance=app,
+            outside=out,
+        )
+
+    def appearance_step(app, g_app, app_state, ok):
+        """Plain Adam on (albedo, lighting), albedo kept >= 0 and 0 on padding."""
+        upd, new_state = app_adam.update(g_app, app_state)
+        upd = tuple(u * (lr * lr_scale) for u, lr in zip(upd, app_lr))
+        albedo = jnp.where(vmask, jnp.maximum(app[0] + upd[0], 0.0), 0.0)
+        new = (albedo, app[1] + upd[1])
+        ok = ok & jnp.all(jnp.isfinite(new[0])) & jnp.all(jnp.isfinite(new[1]))
+        return new, new_state, ok
+
+    solve = lambda b, x0: largesteps_solve(laplacian, b, lam, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
+
+    def step(carry, _):
+        x, u, gu_prev, adam_state, key, xa, app, app_state = carry
+        key, sub = jax.random.split(key)
+        if k is None or k >= n_views:
+            cams, tgt, box, out = cameras, targets, boxes, outside
+        else:
+            idx = jax.random.choice(sub, n_views, (k,), replace=False)
+            cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
+            out = None if outside is None else outside[idx]
+        if crop:
+            cams, tgt = crop_views(jax.random.fold_in(sub, 1), cams, tgt, box, crop)
+        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out)
+        gx = jnp.where(vmask, gx, 0.0)
+        gu, info_b = solve(gx, gu_prev)
+        updates, new_adam = adam.update(gu, adam_state)
+        updates = jax.tree.map(lambda t: t * lr_scale, updates)
+        new_u = jnp.where(vmask, u + updates, 0.0)
+        new_x, info_f = solve(new_u, x)
+        ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
+        new_app, new_app_state = app, app_state
+        if photo:
+            new_app, new_app_state, ok = appearance_step(app, g_app, app_state, ok)
+        keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
+        x, u, gu, adam_state, app, app_state = keep(
+            (new_x, new_u, gu, new_adam, new_app, new_app_state), (x, u, gu_prev, adam_state, app, app_state)
+        )
+        xa = avg * xa + (1.0 - avg) * x if avg > 0 else x
+        status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
+        zero = jnp.zeros((), x.dtype)
+        record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion", "photo",
+                                                              "albedo_smoothness", "containment")}
+        record.update(
+            loss=loss,
+            grad_norm=jnp.sqrt(jnp.sum(gx * gx)),
+            cg_iterations_forward=info_f.iterations,
+            cg_iterations_backward=info_b.iterations,
+            cg_residual=jnp.maximum(info_f.residual, info_b.residual),
+            inverted_faces=inverted_face_count(x, state.rest_vertices, mesh.faces, fmask),
+            status=status,
+        )
+        return (x, u, gu, adam_state, key, xa, app, app_state), record
+
+    x0 = mesh.vertices
+    u0 = jnp.where(vmask, to_differential(laplacian, x0, lam), 0.0)
+    ap = state.appearance
+    app0 = (ap.albedo, ap.lighting) if photo else None
+    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key, x0, app0, ap.adam if photo else None)
+    (_, _, _, adam_state, key, x, app, app_state), record = jax.lax.scan(step, carry, None, length=n_steps)
+    new_mesh = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
+    new_app = Appearance(albedo=app[0], lighting=app[1], adam=app_state) if photo else None
+    new_state = OptimizerState(
+        mesh=new_mesh, adam=adam_state, rest_vertices=state.rest_vertices, step=state.step + n_steps, key=key,
+        appearance=new_app,
+    )
+    return new_state, {name: record[name] for name in RECORD_KEYS}
+
+
+_optimize_block_jit = jax.jit(optimize_steps, static_argnames=("n_steps", "options"), donate_argnames=("state",))
+
+
+def optimize_block_compilations() -> int:
+    """Number of executables `optimize_block` has compiled in this process (one per static configuration)."""
+    return _optimize_block_jit._cache_size() if hasattr(_optimize_block_jit, "_cache_size") else 0
+
+
+def optimize_block(
+    state: OptimizerState,
+    cameras,
+    targets: Float[Array, "N H W C"],
+    *,
+    n_steps: int,
+    options: OptimizeOptions = OptimizeOptions(),
+    lr_scale=1.0,
+) -> tuple[OptimizerState, dict[str, Array]]:
+    """Run `n_steps` large-steps uniform-Adam steps in one jit-compiled `lax.scan`.
+
+    Args:
+        state: from `init_optimizer_state` or a previous block; its buffers are
+            donated (do not reuse the argument).
+        cameras: `Cameras` with N views.
+        targets: `(N, H, W, 1)` silhouettes or `(N, H, W, 4)` RGBA normal images
+            (see `jaxgenus.optim._loss`), one per camera; RGBA photos when `state` has an
+            `appearance` (from `init_optimizer_state(..., albedo=...)`).
+        n_steps: number of steps (static).
+        options: `OptimizeOptions` (static).
+        lr_scale: factor on `options.learning_rate` for this block; a runtime value,
+            so a learning-rate schedule over blocks does not recompile.
+
+    Returns:
+        `(new_state, record)` with `record[name]` an `(n_steps,)` array for every
+        name in `RECORD_KEYS`.
+    """
+    if not isinstance(n_steps, int) or n_steps < 1:
+        raise ValueError(f"n_steps must be a positive int, got {n_steps!r}")
+    if not isinstance(options, OptimizeOptions):
+        raise ValueError(f"options must be an OptimizeOptions, got {type(options).__name__}")
+    if not isinstance(state, OptimizerState):
+        raise ValueError(f"state must be an OptimizerState, got {type(state).__name__}")
+    render_channels(targets, state.appearance is not None)
+    if targets.shape[:3] != (len(cameras), cameras.height, cameras.width):
+        raise ValueError(
+            f"targets must have shape ({len(cameras)}, {cameras.height}, {cameras.width}, C), got {targets.shape}"
+        )
+    if options.views_per_step is not None and options.views_per_step > len(cameras):
+        raise ValueError(f"options.views_per_step ({options.views_per_step}) exceeds the {len(cameras)} cameras")
+    return _optimize_block_jit(state, cameras, targets, n_steps, options, jnp.asarray(lr_scale, state.mesh.vertices.dtype))

@@ -1,0 +1,106 @@
+"""Images at their own resolution: pyramid levels and native-resolution crops.
+
+A run on large images fits coarse, area-averaged copies of them first
+(`pyramid_level`, cameras rescaled with `scaled_cameras`) and the images
+themselves last, through random crops (`crop_views`), so that the cost of a
+step is set by the pixels it renders, not by the size of the images.
+`resolution_factors` gives each cycle's downsampling factor.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float, Int
+
+from jaxgenus.geometry import Cameras
+
+__all__ = ["crop_views", "pyramid_level", "resolution_factors", "scaled_cameras", "target_boxes"]
+
+
+def resolution_factors(height: int, width: int, n_cycles: int, coarse: int, native_cycles: int) -> list[int]:
+    """Downsampling factor of each cycle: a power of two that brings the longer side
+    to about `coarse` pixels (at least 0.75 x coarse) for all but the last
+    `native_cycles` cycles, which run at the images' own resolution (factor 1).
+    `coarse = 0` or images already that small: 1 throughout."""
+    side = max(height, width)
+    if coarse <= 0 or side < 1.5 * coarse:
+        return [1] * n_cycles
+    f = 2 ** int(math.floor(math.log2(side / (0.75 * coarse))))
+    f = max(f, 1)
+    n_native = min(max(native_cycles, 0), n_cycles)
+    return [f] * (n_cycles - n_native) + [1] * n_native
+
+
+def scaled_cameras(cams: Cameras, factor: int) -> Cameras:
+    """The cameras of images downsampled by `factor` (pixel blocks of factor x factor;
+    the last row/column of blocks may hang over the image, see `pyramid_level`)."""
+    if factor == 1:
+        return cams
+    f = float(factor)
+    return Cameras(
+        cams.rotation, cams.translation, cams.focal / f, cams.principal_point / f,
+        -(-cams.height // factor), -(-cams.width // factor),
+    )
+
+
+def pyramid_level(fit: np.ndarray, factor: int, *, normals: bool = True) -> np.ndarray:
+    """Targets `(N, H, W, C)` (C = 1: alpha; C = 4: colour + alpha) averaged over
+    `factor x factor` pixel blocks. Outside the image counts as background
+    (alpha 0). Normal colours (`normals`) are averaged premultiplied by alpha, as
+    the renderer composites normals over the background with its coverage; other
+    colours (photos) are already premultiplied and are averaged as they are."""
+    fit = np.asarray(fit)
+    if factor == 1:
+        return fit
+    n, h, w, c = fit.shape
+    hh, ww = -(-h // factor), -(-w // factor)
+    pad = np.zeros((n, hh * factor, ww * factor, c), np.float32)
+    pad[:, :h, :w] = fit
+    normals = normals and c == 4
+    if normals:
+        normal = 2.0 * pad[..., :3] - 1.0
+        pad[..., :3] = pad[..., 3:4] * normal
+    blocks = pad.reshape(n, hh, factor, ww, factor, c).mean(axis=(2, 4))
+    if normals:
+        blocks[..., :3] = 0.5 * (blocks[..., :3] + 1.0)
+    return blocks.astype(np.float32)
+
+
+def target_boxes(targets: Float[Array, "N H W C"], margin: int) -> Int[Array, "N 4"]:
+    """Per view `(row0, row1, col0, col1)`: the target's alpha > 0 bounding box grown
+    by `margin` pixels and clipped to the image (the whole image when it is empty)."""
+    alpha = targets[..., -1] > 0
+    h, w = alpha.shape[1:]
+
+    def span(any_, size):
+        has = jnp.any(any_, axis=1)
+        first = jnp.argmax(any_, axis=1)
+        last = size - 1 - jnp.argmax(any_[:, ::-1], axis=1)
+        lo = jnp.where(has, jnp.maximum(first - margin, 0), 0)
+        hi = jnp.where(has, jnp.minimum(last + margin, size - 1), size - 1)
+        return lo, hi
+
+    r0, r1 = span(jnp.any(alpha, axis=2), h)
+    c0, c1 = span(jnp.any(alpha, axis=1), w)
+    return jnp.stack([r0, r1, c0, c1], axis=1).astype(jnp.int32)
+
+
+def crop_views(key, cams: Cameras, targets, boxes, size: int):
+    """A random `size x size` crop of every view (at most the image), centred at a
+    uniform point of that view's box (`target_boxes`) and shifted to lie inside the
+    image: returns the cropped `(cameras, targets)`."""
+    n, h, w, c = targets.shape
+    sh, sw = min(size, h), min(size, w)
+    u = jax.random.uniform(key, (n, 2))
+    cy = boxes[:, 0] + u[:, 0] * (boxes[:, 1] - boxes[:, 0] + 1)
+    cx = boxes[:, 2] + u[:, 1] * (boxes[:, 3] - boxes[:, 2] + 1)
+    oy = jnp.clip(jnp.floor(cy - sh / 2), 0, h - sh).astype(jnp.int32)
+    ox = jnp.clip(jnp.floor(cx - sw / 2), 0, w - sw).astype(jnp.int32)
+    crop = jax.vmap(lambda t, y, x: jax.lax.dynamic_slice(t, (y, x, 0), (sh, sw, c)))(targets, oy, ox)
+    shift = jnp.stack([ox, oy], axis=1).astype(cams.principal_point.dtype)
+    cropped = Cameras(cams.rotation, cams.translation, cams.focal, cams.principal_point - shift, sh, sw)
+    return cropped, crop

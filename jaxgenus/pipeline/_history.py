@@ -1,0 +1,170 @@
+"""The record of a reconstruction run: typed, with dict-style reads for scripts and JSON.
+
+`History` holds the per-step arrays of every optimizer step (`RECORD_KEYS` of
+`optimize_block` plus `time`), one `CycleRecord` per optimize/remesh cycle, and
+what the run decided (start, thin-structure switch, compilations). Both classes
+are frozen dataclasses; `history["loss"]`, `history["cycles"][0]["faces"]` and
+`"remesh_status" in row` read them like the dicts they replace, and `to_json()`
+gives plain JSON-ready values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Mapping
+
+import numpy as np
+
+__all__ = ["CycleRecord", "History"]
+
+
+class _Readable:
+    """`record[name]` over the dataclass fields; `name in record` is False for a field that is None."""
+
+    def __getitem__(self, key: str) -> Any:
+        if key not in self._names():
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, str) and key in self._names() and getattr(self, key) is not None
+
+    def get(self, key: str, default=None):
+        return self[key] if key in self else default
+
+    @classmethod
+    def _names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in dataclasses.fields(cls))
+
+
+@dataclasses.dataclass(frozen=True)
+class CycleRecord(_Readable):
+    """One optimize/remesh cycle.
+
+    Attributes:
+        cycle: index from 0.
+        faces, vertices, chi: the mesh after the cycle (after its remesh, if any).
+        loss: the objective at the cycle's last step.
+        truncated_faces: faces the rasterizer drew incompletely (truncated or dropped)
+            at the end of the cycle's optimizer block, over all views.
+        compilations: new compiled executables during this cycle.
+        seconds: wall time of the cycle; elapsed: since the run started.
+        remesh_status: `RemeshStatus` name of the remesh after the cycle (None: no remesh).
+        remesh_seconds: its wall time (None: no remesh).
+        n_cycles: cycles of this fit (`options.fine()` has more).
+        fit, fits: this cycle's fit (0: the first; k: the k-th refit) and the fits the run
+            plans (`1 + ReconstructOptions.refit_count`; a refit that fits its images
+            worse than its start, or a default one that gains little, ends the run early).
+    """
+
+    cycle: int
+    faces: int
+    vertices: int
+    chi: int
+    loss: float
+    truncated_faces: int
+    compilations: int
+    seconds: float
+    elapsed: float
+    remesh_status: str | None = None
+    remesh_seconds: float | None = None
+    n_cycles: int = 0
+    fit: int = 0
+    fits: int = 1
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in self._names() if k in self}
+
+
+@dataclasses.dataclass(frozen=True)
+class History(_Readable):
+    """What a `reconstruct` run did.
+
+    Attributes:
+        steps: per-step `(n_cycles * steps_per_cycle,)` arrays: every key of
+            `RECORD_KEYS` (loss, alpha, normal, ..., status) and `time` (seconds
+            since the start at each cycle's last step, NaN elsewhere).
+            `history["loss"]` reads `history.steps["loss"]`.
+        cycles: one `CycleRecord` per cycle.
+        seconds: wall time of the run (callbacks excluded).
+        requested_genus: the genus asked for.
+        start: where the start mesh came from (`Start.kind`).
+        tunnels: handles drilled into a visual hull of too low a genus.
+        hull_grid: `(resolution, closing)` of the visual-hull start, or None.
+        hull_thickness: `2 * volume / area` of the visual hull in pixels (None when
+            `fine_below` is 0).
+        fine: the run switched to `options.fine()` (thin structures).
+        render_plans: distinct rasterizer plans used.
+        compilations: new compiled executables per jitted piece.
+        targets: what the images held (`"silhouette"`, `"normals"` or `"photo"`).
+        frame: `{"centre", "scale"}` of the canonical frame (`x_world = scale * x + centre`).
+        genus_estimate: `{"genus", "evidence"}` when the genus was estimated, else None.
+        silhouette_iou: per view, the result's silhouette IoU with the target's (alpha 0.5).
+        start_silhouette_iou: the same for the start mesh.
+        normal_error_deg: per view, the mean angle between rendered and target normals
+            where both cover the pixel (normal targets only, else None).
+        photo_error: per view, the mean absolute RGB error of the result's render
+            (albedo and lighting) against the photo where both cover (photo targets only).
+        lighting: the estimated `(3, 24)` or `(3, 3)` lighting as nested lists (photo targets only;
+            see `jaxgenus.render_photo` for its convention).
+        resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
+            downsampled by `factor` to `size = (height, width)`, through random
+            `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`).
+        handles: per handle of the start, where it came from: `{"source": "hull"}` (the
+            visual hull has it), `{"source": "images", "centre", "radius", ...}` (opened
+            where the images show a hole; centre and radius in user units) or
+            `{"source": "drilled"}` (a small tunnel at a spread-out site).
+        ok: the result matches its images (see `jaxgenus.pipeline._verdict`); warnings: why not,
+            and what else to know.
+    """
+
+    steps: Mapping[str, np.ndarray]
+    cycles: tuple[CycleRecord, ...]
+    seconds: float
+    requested_genus: int
+    start: str
+    tunnels: int
+    hull_grid: tuple[int, int] | None
+    hull_thickness: float | None
+    fine: bool
+    render_plans: int
+    compilations: Mapping[str, int]
+    targets: str = "silhouette"
+    frame: Mapping[str, Any] | None = None
+    genus_estimate: Mapping[str, Any] | None = None
+    silhouette_iou: list[float] = dataclasses.field(default_factory=list)
+    start_silhouette_iou: list[float] = dataclasses.field(default_factory=list)
+    normal_error_deg: list[float] | None = None
+    photo_error: list[float] | None = None
+    lighting: list | None = None
+    resolution: list[dict] = dataclasses.field(default_factory=list)
+    handles: list[dict] = dataclasses.field(default_factory=list)
+    ok: bool = True
+    warnings: list[str] = dataclasses.field(default_factory=list)
+
+    def __getitem__(self, key: str) -> Any:
+        if key in self.steps:
+            return self.steps[key]
+        return super().__getitem__(key)
+
+    def __contains__(self, key: object) -> bool:
+        return key in self.steps or super().__contains__(key)
+
+    def keys(self) -> list[str]:
+        return [*self.steps, *(k for k in self._names() if k != "steps" and k in self)]
+
+    def to_json(self) -> dict:
+        """Plain Python values (lists, floats, ints, str, None) for `json.dumps`."""
+        out = {k: np.asarray(v).tolist() for k, v in self.steps.items()}
+        for k in self._names():
+            if k == "steps":
+                continue
+            v = getattr(self, k)
+            if k == "cycles":
+                v = [c.to_json() for c in v]
+            elif isinstance(v, Mapping):
+                v = dict(v)
+            elif isinstance(v, tuple):
+                v = list(v)
+            out[k] = v
+        return out

@@ -1,0 +1,138 @@
+"""The verdict of a run: does the result match its images?
+
+After the last cycle the result is rendered in every view and compared with
+the targets: the per-view silhouette IoU (rendered alpha >= 0.5 against target
+alpha >= 0.5), and the per-view mean angle between rendered and target normals
+where the targets are normal maps. The start mesh is scored the same way.
+
+A run is **not ok** (`ok = False`) when any of these holds, each with a warning:
+
+* the result's genus differs from the requested one;
+* the loss diverged: a non-finite step, or a final loss above 1.5x the first;
+* a view's silhouette IoU is under `min_iou` (a result that does not cover its
+  silhouettes, or silhouettes that disagree with each other);
+* a view disagrees with the rest: its IoU is `outlier_gap` below the median of
+  the views (a mislabelled or miscalibrated view);
+* the result matches its silhouettes worse than the start did (mean IoU lower
+  by more than 0.01).
+
+* photo targets: the median over the views of the photometric error (mean
+  absolute RGB difference of the result's render, with its albedo and lighting,
+  against the photo where both cover the pixel) is above `max_photo_error`: the
+  shading model does not explain the photos.
+
+Warnings that do not make a run fail: faces inverted at the last step, faces
+the rasterizer dropped or truncated, remeshes that hit the face budget (the mesh
+is coarser than asked), photo views whose error is far above the others'
+(a change of exposure or light between views?).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from jaxgenus.geometry import Cameras
+from jaxgenus.geometry import Mesh
+from jaxgenus.rendering import render
+from jaxgenus.rendering import render_photo
+from jaxgenus.capture import Targets
+
+__all__ = ["Verdict", "judge", "photo_errors", "silhouette_ious"]
+
+
+class Verdict(NamedTuple):
+    """Per-view scores and the verdict (see the module doc)."""
+
+    silhouette_iou: list[float]
+    start_silhouette_iou: list[float]
+    normal_error_deg: list[float] | None
+    ok: bool
+    warnings: list[str]
+    photo_error: list[float] | None = None
+
+
+def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None):
+    """Per-view IoU of the rendered silhouette with `alpha (N, H, W)` (both at 0.5), and with
+    `normals (N, H, W, 3)` the per-view mean angle (degrees) between rendered and target
+    normals over the pixels both cover (NaN where none)."""
+    channels = ("alpha",) if normals is None else ("alpha", "normal")
+    img = np.asarray(render(mesh, cams, channels=channels, sigma=sigma), np.float64)
+    mine, theirs = img[..., 0] >= 0.5, np.asarray(alpha) >= 0.5
+    inter = (mine & theirs).sum(axis=(1, 2))
+    union = (mine | theirs).sum(axis=(1, 2))
+    iou = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
+    if normals is None:
+        return iou.tolist(), None
+    n = img[..., 1:4]
+    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+    t = np.asarray(normals, np.float64)
+    t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-12)
+    ang = np.degrees(np.arccos(np.clip(np.sum(n * t, axis=-1), -1.0, 1.0)))
+    both = mine & theirs
+    err = [float(ang[i][both[i]].mean()) if both[i].any() else float("nan") for i in range(len(ang))]
+    return iou.tolist(), err
+
+
+def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float) -> list[float]:
+    """Per view, the mean absolute RGB difference between `render_photo` and `photos (N, H, W, 4)`
+    (straight, not premultiplied) over the pixels both cover at alpha 0.5 (NaN where none)."""
+    img = np.asarray(render_photo(mesh, cams, albedo, lighting, sigma=sigma), np.float64)
+    both = (img[..., 3] >= 0.5) & (np.asarray(photos)[..., 3] >= 0.5)
+    rgb = img[..., :3] / np.maximum(img[..., 3:], 1e-6)
+    err = np.abs(rgb - np.asarray(photos, np.float64)[..., :3]).mean(axis=-1)
+    return [float(err[i][both[i]].mean()) if both[i].any() else float("nan") for i in range(len(err))]
+
+
+def judge(result: Mesh, start: Mesh, cams: Cameras, targets: Targets, steps: dict, cycles, *, genus_ok: bool,
+          sigma: float, min_iou: float, outlier_gap: float, appearance=None, photos=None,
+          max_photo_error: float = 0.1) -> Verdict:
+    """Score `result` and `start` (canonical frame, with `cams` in it) against `targets` and decide.
+
+    Photo targets: `appearance = (albedo, lighting)` of the result and the straight RGBA `photos`."""
+    iou, nerr = silhouette_ious(result, cams, targets.alpha, sigma=sigma, normals=targets.normals)
+    start_iou, _ = silhouette_ious(start, cams, targets.alpha, sigma=sigma)
+    fail, warn = [], []
+    if not genus_ok:
+        fail.append("the result's genus is not the requested one")
+    loss = np.asarray(steps["loss"])
+    bad_steps = int(np.sum(np.asarray(steps["status"]) == 2))
+    if bad_steps:
+        fail.append(f"the loss diverged: {bad_steps} non-finite steps were skipped")
+    if np.isfinite(loss[0]) and loss[-1] > 1.5 * loss[0]:
+        fail.append(f"the loss diverged: {loss[0]:.4g} at the first step, {loss[-1]:.4g} at the last")
+    low = [i for i, x in enumerate(iou) if x < min_iou]
+    if low:
+        fail.append(f"silhouette IoU under {min_iou} in views {low} (min {min(iou):.3f}): the result does not "
+                    "match those images, or they disagree with the others")
+    med = float(np.median(iou))
+    odd = [i for i, x in enumerate(iou) if x < med - outlier_gap]
+    if odd:
+        fail.append(f"views {odd} disagree with the rest (IoU {', '.join(f'{iou[i]:.3f}' for i in odd)} against "
+                    f"a median of {med:.3f}): mislabelled or miscalibrated?")
+    if np.mean(iou) < np.mean(start_iou) - 0.01:
+        fail.append(f"the result matches its silhouettes worse than the start (mean IoU {np.mean(iou):.3f} < "
+                    f"{np.mean(start_iou):.3f})")
+    inverted = int(np.asarray(steps["inverted_faces"])[-1])
+    if inverted:
+        warn.append(f"{inverted} faces inverted at the last step")
+    if cycles and cycles[-1].truncated_faces:
+        warn.append(f"the rasterizer drew {cycles[-1].truncated_faces} faces incompletely at the end (dropped or "
+                    "truncated): raise its budget or lower max_faces")
+    hits = [c.cycle for c in cycles if c.remesh_status == "CAPACITY_EXCEEDED"]
+    if hits:
+        warn.append(f"remeshes after cycles {hits} hit the face budget (edges longer than the images resolve; "
+                    "raise max_faces for more detail)")
+    perr = None
+    if appearance is not None:
+        perr = photo_errors(result, cams, photos, *appearance, sigma=sigma)
+        med = float(np.nanmedian(perr))
+        if not med <= max_photo_error:
+            fail.append(f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian "
+                        "shading under one distant light does not explain the photos")
+        odd = [i for i, e in enumerate(perr) if e > 2.0 * med + 0.02]
+        if odd:
+            warn.append(f"photo views {odd} fit far worse than the rest (error {', '.join(f'{perr[i]:.3f}' for i in odd)}"
+                        f" against a median of {med:.3f}): exposure or lighting changed between views?")
+    return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr)

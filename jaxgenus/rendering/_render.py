@@ -1,0 +1,261 @@
+"""`render`: differentiable soft rasterizer (silhouette, normal, depth, shaded channels).
+
+The per-face set-up (projection, culling, depth planes, attributes) is plain JAX
+and is differentiated by autodiff; the per-pixel work is the face-major splat of
+`_splat.py` with its hand-written VJP. See docs/rendering.md.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Int
+
+from jaxgenus.geometry import Cameras
+from jaxgenus.geometry import Mesh
+from jaxgenus.rendering._faces import Faces, check_inputs, check_scalar, face_setup
+from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
+from jaxgenus.rendering._splat import SplatConfig, Tier, splat
+from jaxgenus.rendering._splat_native import splat_all
+
+__all__ = ["render", "RenderInfo", "CHANNEL_SIZES"]
+
+#: Number of image channels each requested channel contributes, in request order.
+CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1, "color": 3}
+_BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0)}
+
+
+class RenderInfo(eqx.Module):
+    """Coverage counters of one `render` call (per view, int32 arrays)."""
+
+    n_visible: Int[Array, "N"]
+    n_truncated: Int[Array, "N"]
+    n_dropped: Int[Array, "N"]
+
+    @property
+    def n_overflow(self) -> Array:
+        """Total number of faces rendered incompletely (truncated + dropped), all views."""
+        return jnp.sum(self.n_truncated) + jnp.sum(self.n_dropped)
+
+
+def _compact(mask: Array, k: int):
+    """Indices of the first `k` True entries of each row of `mask (N, F)`, and a slot mask."""
+    n, f = mask.shape
+    pos = jnp.cumsum(mask, axis=1) - 1
+    tgt = jnp.where(mask & (pos < k), pos, k)
+    rows = jnp.broadcast_to(jnp.arange(n)[:, None], (n, f))
+    idx = jnp.zeros((n, k), jnp.int32).at[rows, tgt].set(
+        jnp.broadcast_to(jnp.arange(f, dtype=jnp.int32), (n, f)), mode="drop"
+    )
+    count = jnp.sum(mask, axis=1)
+    return idx, jnp.arange(k)[None, :] < count[:, None], count
+
+
+def _gather(x, idx):
+    return jnp.take_along_axis(x, idx.reshape(idx.shape + (1,) * (x.ndim - 2)), axis=1)
+
+
+def _is_traced(x) -> bool:
+    return isinstance(x, jax.core.Tracer)
+
+
+def _default_plan(mesh, cameras, sigma, znear, cull):
+    if not (_is_traced(mesh.vertices) or _is_traced(cameras.rotation) or _is_traced(cameras.translation)):
+        return plan_render(mesh, cameras, sigma=sigma, znear=znear, cull_backfaces=cull)
+    return static_plan(mesh.face_capacity, cameras.height, cameras.width, sigma)
+
+
+def render(
+    mesh: Mesh,
+    cameras: Cameras,
+    *,
+    channels=("alpha", "normal"),
+    sigma: float = 0.1,
+    gamma: float = 0.01,
+    background=None,
+    znear: float = 1e-4,
+    cull_backfaces: bool = True,
+    light_direction=None,
+    ambient: float = 0.3,
+    face_colors=None,
+    plan: RasterPlan | None = None,
+    return_info: bool = False,
+):
+    """Soft-rasterize `mesh` in every camera: returns images `(N, H, W, C)`.
+
+    Channels (concatenated in the requested order; `CHANNEL_SIZES` gives C):
+
+    * `"alpha"` (1): coverage `min(1, sum_j sigmoid(s_j / sigma))` over the front
+      faces, `s_j` the signed distance in pixels from the pixel centre to face j's
+      projection (> 0 inside). Neighbours sum to 1 along a shared edge, so the
+      inside of a fine mesh is opaque and silhouettes are not shifted.
+    * `"normal"` (3): world-space unit face normals blended by a depth softmax
+      with temperature `gamma` (on the normalized inverse depth of the view).
+    * `"depth"` (1): the camera-space depth blended the same way.
+    * `"shaded"` (1): Lambertian `ambient + (1 - ambient) * max(0, n . l)` blended
+      the same way; `l` is `light_direction` (world, pointing to the light) or, if
+      None, a headlight (towards each camera).
+    * `"color"` (3): the per-face RGB `face_colors` blended the same way (a photo's
+      shading, see `jaxgenus.render_photo`).
+
+    Args:
+        sigma: edge blur in pixels (the sigmoid's scale; 10-90 % over 4.4 sigma).
+            gamma: depth softmax temperature.
+        background: dict `{"normal": (3,), "depth": float, "shaded": float}` of
+            blend background values (default 0); alpha's background is 0.
+        znear: faces with a vertex at camera depth <= znear (world units) are skipped.
+        cull_backfaces: fade out faces turned away from the camera (closed meshes):
+            coverage and blend weight scale by `sigmoid(cos / FACING_WIDTH)`, so the
+            image stays continuous in the vertices as a face turns at the contour
+            (a hard cut there breaks the silhouette gradient). False: all faces.
+        face_colors: `(face capacity, 3)` RGB per face, needed by `"color"` (differentiable).
+        plan: None (default): on CPU the native kernel (`_splat_native`, C++ behind
+            the XLA FFI) renders every face exactly, with no windows or budgets, under
+            `jit` or not; on other platforms the JAX splat runs with a plan from the
+            geometry (concrete inputs) or from static sizes (`static_plan`, traced),
+            its overflow counted in `RenderInfo`. A given `RasterPlan` always runs
+            the JAX splat with it.
+        return_info: also return a `RenderInfo` with overflow counts.
+
+    Only the requested channels are computed. jit/vmap friendly; float64 under x64.
+    """
+    check_inputs(mesh, cameras)
+    if isinstance(channels, str):
+        channels = (channels,)
+    channels = tuple(channels)
+    if not channels:
+        raise ValueError("channels must name at least one channel")
+    for c in channels:
+        if c not in CHANNEL_SIZES:
+            raise ValueError(f"channels: unknown channel {c!r}; choose from {tuple(CHANNEL_SIZES)}")
+    if len(set(channels)) != len(channels):
+        raise ValueError(f"channels must not repeat, got {channels}")
+    sigma = check_scalar("sigma", sigma)
+    gamma = check_scalar("gamma", gamma)
+    znear = check_scalar("znear", znear)
+    ambient = float(ambient)
+    if not 0.0 <= ambient <= 1.0:
+        raise ValueError(f"ambient must be in [0, 1], got {ambient}")
+    bg = dict(_BLEND_DEFAULT)
+    if background is not None:
+        if not isinstance(background, dict):
+            raise ValueError("background must be a dict {channel: value}")
+        for k, val in background.items():
+            if k not in bg:
+                raise ValueError(f"background: no configurable background for channel {k!r}")
+            val = tuple(float(x) for x in np.atleast_1d(np.asarray(val, dtype=float)))
+            if len(val) != len(bg[k]):
+                raise ValueError(f"background[{k!r}] must have {len(bg[k])} values, got {len(val)}")
+            bg[k] = val
+    if light_direction is not None:
+        ld = np.asarray(light_direction, dtype=float)
+        if ld.shape != (3,) or not np.linalg.norm(ld) > 0:
+            raise ValueError("light_direction must be a non-zero 3-vector")
+    if ("color" in channels) != (face_colors is not None):
+        raise ValueError("face_colors must be given exactly when channels has 'color'")
+    if face_colors is not None:
+        face_colors = jnp.asarray(face_colors)
+        if face_colors.shape != (mesh.face_capacity, 3):
+            raise ValueError(f"face_colors must have shape (face capacity {mesh.face_capacity}, 3), got {face_colors.shape}")
+    native = plan is None
+    if plan is None:
+        # the plan of the JAX splat, used only where the native kernel is not (GPU):
+        # from the geometry when it is concrete, else from static sizes
+        if jax.default_backend() == "cpu":
+            plan = static_plan(mesh.face_capacity, cameras.height, cameras.width, sigma)
+        else:
+            plan = _default_plan(mesh, cameras, sigma, znear, cull_backfaces)
+    elif not isinstance(plan, RasterPlan):
+        raise ValueError(f"plan must be a RasterPlan, got {type(plan).__name__}")
+
+    light = None if light_direction is None else tuple(float(x) for x in np.asarray(light_direction).ravel())
+    return _render_jit(
+        mesh, cameras, plan, face_colors, channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces),
+        light=light, ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native,
+    )
+
+
+def _splat_windows(fs: Faces, plan: RasterPlan, n_faces: int, cfg: SplatConfig):
+    """The JAX splat over the plan's tiers: `(cov, blend, truncated, dropped)`."""
+    two = plan.max_big_faces > 0
+    small = fs.valid & (fs.extent <= plan.window) if two else fs.valid
+    groups = [(small, plan.window, min(plan.max_faces, n_faces))]
+    if two:
+        groups.append((fs.valid & ~small, plan.big_window, min(plan.max_big_faces, n_faces)))
+    tiers, windows = [], []
+    dropped = jnp.zeros(fs.valid.shape[0], jnp.int32)
+    truncated = jnp.zeros(fs.valid.shape[0], jnp.int32)
+    for mask, b, k in groups:
+        idx, slot, count = _compact(mask, k)
+        dropped = dropped + jnp.maximum(count - k, 0).astype(jnp.int32)
+        truncated = truncated + jnp.sum(slot & (_gather(fs.extent, idx) > b), axis=1).astype(jnp.int32)
+        tiers.append(
+            Tier(
+                _gather(fs.v, idx), _gather(fs.plane, idx), _gather(fs.qrange, idx),
+                _gather(fs.attr, idx), _gather(fs.logw, idx), slot, _gather(fs.origin, idx),
+            )
+        )
+        windows.append(b)
+    cov, blend = splat(cfg._replace(windows=tuple(windows)), tuple(tiers), fs.dconst)
+    return cov, blend, truncated, dropped
+
+
+def _splat_native(fs: Faces, cfg: SplatConfig):
+    """The native CPU kernel over every face (no windows, nothing truncated or dropped)."""
+    faces = Tier(fs.v, fs.plane, fs.qrange, fs.attr, fs.logw, fs.valid, None)
+    cov, blend = splat_all(cfg, faces, fs.dconst)
+    zero = jnp.zeros(fs.valid.shape[0], jnp.int32)
+    return cov, blend, zero, zero
+
+
+@functools.partial(
+    jax.jit,
+    static_argnames=("channels", "sigma", "gamma", "znear", "cull", "light", "ambient", "bg", "return_info", "native"),
+)
+def _render_jit(mesh, cameras, plan, face_colors, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info, native):
+    bg = dict(bg)
+    attrs = tuple(c for c in ("normal", "shaded", "color") if c in channels)
+    want_depth = "depth" in channels
+    fs = face_setup(
+        mesh, cameras, sigma=sigma, znear=znear, cull=cull, attrs=attrs,
+        light=light, ambient=ambient, face_colors=face_colors,
+    )
+    cfg = SplatConfig(
+        height=cameras.height, width=cameras.width, windows=(), sigma=sigma, gamma=gamma,
+        want_cov=True, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
+        background=sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ()),
+    )
+    windows = lambda f: _splat_windows(f, plan, mesh.face_capacity, cfg)
+    if native:  # no plan given: the native kernel on CPU, the JAX splat with `plan` elsewhere
+        cov, blend, truncated, dropped = jax.lax.platform_dependent(
+            fs, cpu=lambda f: _splat_native(f, cfg), default=windows
+        )
+    else:
+        cov, blend, truncated, dropped = windows(fs)
+
+    offsets, o = {}, 0
+    for c in attrs + (("depth",) if want_depth else ()):
+        offsets[c] = o
+        o += CHANNEL_SIZES[c]
+    # blend channels are composited over their background with the coverage, so a
+    # face's faint outer tail (which wins the depth softmax against the background)
+    # fades in with its coverage instead of switching the pixel at the blur cutoff
+    alpha = jnp.minimum(cov, 1.0)[..., None]
+    out = []
+    for c in channels:
+        if c == "alpha":
+            out.append(alpha)
+        else:
+            val = blend[..., offsets[c] : offsets[c] + CHANNEL_SIZES[c]]
+            out.append(alpha * val + (1.0 - alpha) * jnp.asarray(bg[c], val.dtype))
+    images = jnp.concatenate(out, axis=-1)
+    if return_info:
+        info = RenderInfo(jnp.sum(fs.valid, axis=1).astype(jnp.int32), truncated, dropped)
+        return images, info
+    return images
+
+
