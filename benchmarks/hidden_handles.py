@@ -59,7 +59,7 @@ def run_one(spec: str, res: int, views: int, grids, options: dict, seed: int) ->
     cams = jg.sphere_cameras(views, radius=3.0, fov_deg=40.0, resolution=res)
     images = raycast(cams, gt)
     t0 = time.perf_counter()
-    rec = jg.reconstruct(images, cams, genus, targets="normals", options=jg.ReconstructOptions(**options),
+    rec = jg.reconstruct(images, cams, genus, targets="normals", options=jg.ReconstructOptions().updated(**options),
                          key=jax.random.key(seed))
     seconds = time.perf_counter() - t0
     for g in grids:  # the first grid on which the object's own voxels have its genus
@@ -69,7 +69,8 @@ def run_one(spec: str, res: int, views: int, grids, options: dict, seed: int) ->
     aligned = jg.metrics.icp_align(rec.mesh, gt).vertices
     _, f = rec.mesh.to_numpy()
     row = dict(shape=spec, genus=genus, result_genus=rec.genus, res=res, views=views, grid=place.resolution,
-               start=rec.history["start"], tunnels=rec.history["tunnels"], handles=rec.history["handles"],
+               start=rec.history["start"], tunnels=rec.history["tunnels"],
+               handles=[h.to_json() for h in rec.history["handles"]],
                cd_l1=jg.metrics.chamfer_distance((aligned, f), gt).l1, iou=jg.metrics.volume_iou((aligned, f), gt),
                seconds=seconds, ok=rec.history["ok"], placed=place.placed, object_resolved=place.object_resolved,
                options=options, seed=seed)

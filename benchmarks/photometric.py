@@ -72,7 +72,7 @@ def run_one(shape: str, albedo: str, targets: str, res: int, views: int, options
         images = raycast(cams, gt)
     else:
         images = photos
-    rec = jg.reconstruct(images, cams, genus, targets=targets, options=jg.ReconstructOptions(**options),
+    rec = jg.reconstruct(images, cams, genus, targets=targets, options=jg.ReconstructOptions().updated(**options),
                          key=jax.random.key(seed))
     aligned = jg.metrics.icp_align(rec.mesh, gt).vertices
     _, f = rec.mesh.to_numpy()

@@ -121,7 +121,7 @@ def run_one(spec: str, res: int, views: int, options: dict) -> dict:
     t = time.perf_counter()
     targets = raycast(cams, gt)
     raycast_s = time.perf_counter() - t
-    rec = jg.reconstruct(targets, cams, genus, options=jg.ReconstructOptions(**options))
+    rec = jg.reconstruct(targets, cams, genus, options=jg.ReconstructOptions().updated(**options))
     v, f = rec.mesh.to_numpy()
     icp = jg.metrics.icp_align(rec.mesh, gt).vertices
     # the cameras are the truth's, so the frame is exact; ICP only removes a small drift, and on a

@@ -152,7 +152,9 @@ def step_rows(name, mesh, args):
                 k: jg.OptimizeOptions(
                     weights=weights,
                     views_per_step=args.views_per_step,
-                    render_kwargs=(("plan", plan),),
+                    render=jg.RenderSettings(plan=plan),
+                    learning_rate=3e-2,
+                    adam_quantile=1.0,
                     cg_max_iter=2000 if k == "lineax CG" else 1999,
                 )
                 for k in SOLVERS

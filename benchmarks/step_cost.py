@@ -88,7 +88,8 @@ def step_table(mesh, args):
     for name, weights in settings:
         for lam in (19.0, 1e4):
             opts = jg.OptimizeOptions(
-                lambda_=lam, weights=weights, views_per_step=args.views_per_step, render_kwargs=(("plan", plan),)
+                lambda_=lam, weights=weights, views_per_step=args.views_per_step, render=jg.RenderSettings(plan=plan),
+                learning_rate=3e-2, adam_quantile=1.0,
             )
             state = jg.init_optimizer_state(mesh, jax.random.key(0))
             t0 = time.perf_counter()

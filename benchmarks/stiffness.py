@@ -42,7 +42,7 @@ def problem(subdivisions, resolution, n_views):
 
 
 def run(mesh, cams, targets, plan, steps, **options):
-    opts = jg.OptimizeOptions(render_kwargs=(("plan", plan),), **options)
+    opts = jg.OptimizeOptions(render=jg.RenderSettings(plan=plan), adam_quantile=1.0, views_per_step=None, **options)
     state = jg.init_optimizer_state(mesh, jax.random.key(0))
     t0 = time.perf_counter()
     state, rec = jg.optimize_block(state, cams, targets, n_steps=steps, options=opts)

@@ -59,6 +59,7 @@ from jaxgenus.rendering import (
     render,
     render_photo,
     RenderInfo,
+    RenderSettings,
     static_plan,
 )
 from jaxgenus.capture import (
@@ -91,6 +92,8 @@ from jaxgenus.optim import (
     UniformAdamState,
 )
 from jaxgenus.pipeline import (
+    GenusEstimate,
+    HandleRecord,
     builtin_scene,
     CycleRecord,
     handle_candidates,
@@ -132,7 +135,9 @@ __all__ = [
     "from_differential",
     "genus",
     "genus_primitive",
+    "GenusEstimate",
     "GradientTransformation",
+    "HandleRecord",
     "handle_candidates",
     "HandleCandidate",
     "History",
@@ -177,6 +182,7 @@ __all__ = [
     "render_photo",
     "render_targets",
     "RenderInfo",
+    "RenderSettings",
     "save_mesh",
     "SCENES",
     "SolveInfo",

@@ -113,7 +113,9 @@ def _options(args):
     if args.cycles:
         change["n_cycles"] = args.cycles
     if args.max_faces:
-        change.update(max_faces=args.max_faces, initial_faces=min(opts.initial_faces, args.max_faces))
+        if opts.remesh is not None:
+            change["max_faces"] = args.max_faces
+        change["initial_faces"] = min(opts.initial_faces, args.max_faces)
     if args.edge_length:
         change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
     if args.coarse_resolution is not None:
@@ -128,7 +130,24 @@ def _options(args):
         change["refits"] = args.refits
     if args.refit_carve is not None:
         change["refit_carve"] = args.refit_carve
-    return dataclasses.replace(opts, **change)
+    for item in args.option or []:
+        name, value = _setting(item)
+        change[name] = value
+    return opts.updated(**change)
+
+
+def _setting(item: str):
+    """`NAME=VALUE` of `--option`: VALUE as a Python literal (number, True/False, None, tuple), else a string."""
+    import ast
+
+    name, eq, text = item.partition("=")
+    if not eq or not name.strip().isidentifier():
+        raise _InputError(f"--option: expected NAME=VALUE (a setting of ReconstructOptions or of its parts), got {item!r}")
+    try:
+        value = ast.literal_eval(text.strip())
+    except (ValueError, SyntaxError):
+        value = text.strip()
+    return name.strip(), value
 
 
 def _captured(args, say):
@@ -177,7 +196,7 @@ def _reconstruct(args) -> int:
         raise _InputError("give --mesh GT.obj (synthetic targets) or --images PATH --cameras FILE")
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
-        f"{opts.steps_per_cycle} steps, up to {opts.max_faces} faces")
+        f"{opts.steps_per_cycle} steps, up to {opts.face_budget} faces")
     rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say)
     _report(rec, gt)
     _write(rec, args.out)
@@ -239,6 +258,9 @@ def main(argv=None) -> int:
                    "from the camera where its normals contradict the images, with this weight (default 1; 0: off; "
                    "ReconstructOptions.refit_carve)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
+    r.add_argument("--option", action="append", metavar="NAME=VALUE",
+                   help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "
+                        "learning_rate=0.05 --option adaptive=True --option sigma=0.03 (repeatable; applied last)")
     r.add_argument("--coarse-resolution", type=int, default=None,
                    help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "
                         "full size throughout)")

@@ -4,17 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import trimesh
 
 import jax
 import jax.numpy as jnp
 
 import jaxgenus as jg
+from _meshes import icosphere
 
 
 def _scene():
-    m = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
-    mesh = jg.Mesh.from_numpy(np.asarray(m.vertices, np.float32), np.asarray(m.faces, np.int32))
+    mesh = icosphere(3, radius=1.0, dtype=np.float32)
     cams = jg.sphere_cameras(3, radius=3.0, fov_deg=40.0, resolution=48)
     return mesh, cams
 

@@ -7,13 +7,10 @@ import trimesh
 
 import jaxgenus
 from jaxgenus import metrics
+from _meshes import icosphere_trimesh
 
 R1, R2 = 1.0, 1.25
 N = 20_000  # samples per metric call in these tests (the defaults are larger)
-
-
-def _sphere(radius, subdivisions=4):
-    return trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
 
 
 def _blob(subdivisions=3):
@@ -35,7 +32,7 @@ def _rigid(axis, angle, translation):
 
 @pytest.fixture(scope="module")
 def spheres():
-    return _sphere(R1), _sphere(R2)
+    return icosphere_trimesh(4, R1), icosphere_trimesh(4, R2)
 
 
 def test_concentric_spheres_chamfer(spheres):
@@ -108,8 +105,8 @@ def test_mesh_with_itself():
 
 
 def test_disjoint_and_empty_volume():
-    a = _sphere(1.0, 2)
-    b = _sphere(1.0, 2)
+    a = icosphere_trimesh(2, 1.0)
+    b = icosphere_trimesh(2, 1.0)
     b.apply_translation([3, 0, 0])
     assert metrics.volume_iou(a, b, n_samples=N) == 0.0
     flat = (np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
@@ -176,7 +173,7 @@ def test_icp_unconstrained_rotation_and_jax_state():
     import jax
 
     flag = jax.config.jax_enable_x64
-    target = _sphere(1.0, 3)
+    target = icosphere_trimesh(3, 1.0)
     t0 = _rigid([0, 0, 1], 0.1, [0.03, -0.02, 0.01])
     v = np.asarray(target.vertices)
     r = metrics.icp_align((v @ t0[:3, :3].T + t0[:3, 3], target.faces), target, n_samples=1000)
@@ -227,7 +224,7 @@ def test_icp_initial_and_rigidity():
 
 def test_input_kinds_and_dtypes_agree():
     m = _blob()
-    other = _sphere(1.1, 3)
+    other = icosphere_trimesh(3, 1.1)
     v, f = np.asarray(m.vertices), np.asarray(m.faces)
     v32 = v.astype(np.float32)
     kinds = [
@@ -258,7 +255,7 @@ def test_input_kinds_and_dtypes_agree():
 
 
 def test_deterministic_given_seed():
-    a, b = _blob(), _sphere(1.1, 3)
+    a, b = _blob(), icosphere_trimesh(3, 1.1)
     c1 = metrics.chamfer_distance(a, b, n_samples=3000, seed=7)
     assert metrics.chamfer_distance(a, b, n_samples=3000, seed=7) == c1
     assert metrics.chamfer_distance(a, b, n_samples=3000, seed=8) != c1
@@ -300,7 +297,7 @@ def test_inputs_not_modified():
     ],
 )
 def test_bad_inputs_raise(bad, match):
-    good = _sphere(1.0, 1)
+    good = icosphere_trimesh(1, 1.0)
     with pytest.raises(ValueError, match=match) as e:
         metrics.chamfer_distance(bad, good, n_samples=10)
     assert str(e.value).startswith("a")
@@ -317,7 +314,7 @@ def test_bad_inputs_raise(bad, match):
 
 @pytest.mark.parametrize("n", [0, -5, 2.5, True])
 def test_bad_sample_counts_raise(n):
-    s = _sphere(1.0, 1)
+    s = icosphere_trimesh(1, 1.0)
     with pytest.raises(ValueError, match="n_samples"):
         metrics.hausdorff_distance(s, s, n_samples=n)
     with pytest.raises(ValueError, match="max_iterations"):
@@ -327,7 +324,7 @@ def test_bad_sample_counts_raise(n):
 def test_degenerate_inputs_raise():
     point = (np.zeros((3, 3)), np.array([[0, 1, 2]]))
     with pytest.raises(ValueError, match="zero surface area"):
-        metrics.chamfer_distance(point, _sphere(1.0, 1), n_samples=10)
+        metrics.chamfer_distance(point, icosphere_trimesh(1, 1.0), n_samples=10)
     with pytest.raises(ValueError, match="zero bounding radius"):
         metrics.normalize_to_unit_sphere(point)
 

@@ -2,24 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spl
-import trimesh
 
 import jax
 import jax.numpy as jnp
 
 import jaxgenus as jg
 from jaxgenus import LossWeights
+from _meshes import icosphere, icosphere_arrays
 from _soft_silhouette import soft_silhouette
-
-
-def _sphere(subdivisions=2, radius=1.0, capacity=None):
-    m = trimesh.creation.icosphere(subdivisions=subdivisions, radius=radius)
-    v, f = np.asarray(m.vertices), np.asarray(m.faces)
-    return v, f, (jg.Mesh.from_numpy(v, f, capacity=capacity) if capacity else None)
 
 
 def _scipy_laplacian(f, n):
@@ -43,7 +39,8 @@ def _fd_check(f, x, direction_seed=0, eps=1e-6, rtol=1e-5):
 
 
 def test_uniform_laplacian_matches_scipy_on_padded_mesh():
-    v, f, mesh = _sphere(2, capacity=(200, 400))
+    v, f = icosphere_arrays(2)
+    mesh = jg.Mesh.from_numpy(v, f, capacity=(200, 400))
     with jax.enable_x64(True):
         lap = jg.uniform_laplacian(jnp.asarray(np.asarray(mesh.faces)), mesh.vertex_capacity)
         dense = np.asarray(lap.todense())
@@ -59,7 +56,7 @@ def test_uniform_laplacian_matches_scipy_on_padded_mesh():
 
 
 def test_bilaplacian_energy_matches_scipy_and_gradient():
-    v, f, _ = _sphere(1)
+    v, f = icosphere_arrays(1)
     rng = np.random.default_rng(1)
     x = v + 0.05 * rng.normal(size=v.shape)
     lx = _scipy_laplacian(f, len(v)) @ x
@@ -74,7 +71,7 @@ def test_bilaplacian_energy_matches_scipy_and_gradient():
 
 
 def test_inversion_penalty_zero_at_rest_positive_after_fold_and_gradient():
-    v, f, _ = _sphere(1)
+    v, f = icosphere_arrays(1)
     with jax.enable_x64(True):
         faces = jnp.asarray(np.vstack([f, np.zeros((4, 3), int)]), jnp.int32)
         rest = jnp.asarray(v)
@@ -109,7 +106,7 @@ def test_outside_distance_is_the_pixel_distance_to_the_silhouette():
 
 
 def test_containment_penalty_zero_inside_pulls_a_spike_back_and_gradient():
-    v, f, _ = _sphere(2)
+    v, f = icosphere_arrays(2)
     cams = jg.sphere_cameras(6, radius=3.0, fov_deg=40.0, resolution=48)
     alpha = jg.render_targets(jg.Mesh.from_numpy(v.astype(np.float32), f), cams)[..., 3]
     outside = jg.outside_distance(alpha)
@@ -156,7 +153,7 @@ def test_image_loss_values_and_gradient():
 
 
 def test_objective_gradient_with_test_renderer():
-    v, f, _ = _sphere(1, radius=0.8)
+    v, f = icosphere_arrays(1, radius=0.8)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=12)
     with jax.enable_x64(True):
         mesh = jg.Mesh.from_numpy(v, f, capacity=(50, 96))
@@ -181,7 +178,7 @@ def test_objective_gradient_with_test_renderer():
 
 @pytest.mark.parametrize("lam", [1.0, 19.0, 100.0, 1e3, 1e4])
 def test_largesteps_solve_matches_spsolve(lam):
-    v, f, _ = _sphere(2)
+    v, f = icosphere_arrays(2)
     n, vcap = len(v), len(v) + 6
     rng = np.random.default_rng(4)
     b = np.zeros((vcap, 3))
@@ -206,7 +203,7 @@ def test_largesteps_solve_matches_spsolve(lam):
 
 
 def test_largesteps_nonconvergence_is_reported():
-    v, f, _ = _sphere(2)
+    v, f = icosphere_arrays(2)
     lap = jg.uniform_laplacian(jnp.asarray(f, jnp.int32), len(v))
     x, info = jg.largesteps_solve(lap, jnp.asarray(v, jnp.float32), 1e4, max_iter=3)
     assert not bool(info.converged) and int(info.iterations) == 3 and float(info.residual) > 1e-3
@@ -225,7 +222,7 @@ def test_largesteps_solve_float32_warm_starts_and_columns(lam):
     """lineax CG per column in float32 on a padded mesh: no false breakdown (NaN) at stiff
     lambda, a good warm start converges (the true residual's float32 floor is above rtol),
     a bad one is dropped, and a NaN column stops only that column."""
-    v, f, _ = _sphere(3)
+    v, f = icosphere_arrays(3)
     n, vcap = len(v), len(v) + 40
     faces = jnp.asarray(np.vstack([f, np.zeros((30, 3), int)]), jnp.int32)
     lap = jg.uniform_laplacian(faces, vcap)
@@ -253,7 +250,7 @@ def test_largesteps_solve_float32_warm_starts_and_columns(lam):
 
 
 def test_differential_roundtrip_gradient_and_alpha_form():
-    v, f, _ = _sphere(1)
+    v, f = icosphere_arrays(1)
     n = len(v)
     lam = 19.0
     a = (sp.eye(n) + lam * _scipy_laplacian(f, n)).tocsc()
@@ -360,7 +357,8 @@ def test_uniform_adam_in_optimistix_optax_minimiser():
 
 
 def _fit_problem(resolution=24, n_views=8):
-    v, f, mesh = _sphere(2, radius=0.8, capacity=(200, 384))
+    v, f = icosphere_arrays(2, radius=0.8)
+    mesh = jg.Mesh.from_numpy(v, f, capacity=(200, 384))
     cams = jg.sphere_cameras(n_views, radius=3.0, fov_deg=40.0, resolution=resolution)
     target_mesh = jg.Mesh.from_numpy(v * np.array([1.25, 0.7, 0.9]), f)
     return mesh, cams, soft_silhouette(target_mesh, cams)
@@ -368,12 +366,14 @@ def _fit_problem(resolution=24, n_views=8):
 
 def test_fixed_topology_fit_sphere_to_ellipsoid():
     """RGBA targets (RGB = (n + 1) / 2, A = silhouette) rendered by `jg.render`, fitted through `jg.render`."""
-    v, f, mesh = _sphere(2, radius=0.8, capacity=(200, 384))
+    v, f = icosphere_arrays(2, radius=0.8)
+    mesh = jg.Mesh.from_numpy(v, f, capacity=(200, 384))
     cams = jg.sphere_cameras(6, radius=3.0, fov_deg=40.0, resolution=24)
     images = jg.render(jg.Mesh.from_numpy(v * np.array([1.25, 0.7, 0.9]), f), cams, channels=("alpha", "normal"))
     targets = jnp.concatenate([(images[..., 1:] + 1.0) / 2.0, images[..., :1]], axis=-1)
     plan = jg.plan_render(mesh, cams, face_margin=1.5)
-    opts = jg.OptimizeOptions(learning_rate=0.05, render_kwargs=(("plan", plan),))
+    opts = jg.OptimizeOptions(learning_rate=0.05, adam_quantile=1.0, views_per_step=None,
+                              render=jg.RenderSettings(plan=plan))
     x_in = np.array(mesh.vertices)
     state = jg.init_optimizer_state(mesh, jax.random.key(0))
     records = []
@@ -401,25 +401,29 @@ def test_fixed_topology_fit_sphere_to_ellipsoid():
 
 
 def test_optimize_block_compiles_once_per_bucket_and_samples_views():
-    from jaxgenus.optim._optimize import optimize_block_compilations
-
     mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
-    opts = jg.OptimizeOptions(learning_rate=0.05, renderer=soft_silhouette, views_per_step=2)
-    before = optimize_block_compilations()
-    other = jg.Mesh.from_numpy(*_sphere(1, radius=0.8)[:2], capacity=(200, 384))  # same bucket, other mesh
-    for m in (mesh, other, mesh):
-        state = jg.init_optimizer_state(m, jax.random.key(1))
-        for _ in range(2):
-            state, rec = jg.optimize_block(state, cams, targets, n_steps=3, options=opts)
-    assert optimize_block_compilations() == before + 1
+    opts = jg.OptimizeOptions(learning_rate=0.05, adam_quantile=1.0, renderer=soft_silhouette, views_per_step=2)
+    other = icosphere(1, radius=0.8, capacity=(200, 384))  # same bucket, other mesh
+    with jg.optim.count_compilations() as compiled:
+        for m in (mesh, other, mesh):
+            state = jg.init_optimizer_state(m, jax.random.key(1))
+            for _ in range(2):
+                state, rec = jg.optimize_block(state, cams, targets, n_steps=3, options=opts)
+    assert compiled["optimize_steps"] == 1
     # the same key gives the same view samples, another key other ones
     s1, r1 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3, options=opts)
     s2, r2 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3, options=opts)
     s3, r3 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(8)), cams, targets, n_steps=3, options=opts)
     np.testing.assert_array_equal(np.asarray(r1["loss"]), np.asarray(r2["loss"]))
     assert not np.array_equal(np.asarray(r1["loss"]), np.asarray(r3["loss"]))
+    # more views per step than there are cameras: every view, as with None
+    all7, rec7 = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3,
+                                   options=dataclasses.replace(opts, views_per_step=7))
+    alln, recn = jg.optimize_block(jg.init_optimizer_state(mesh, jax.random.key(7)), cams, targets, n_steps=3,
+                                   options=dataclasses.replace(opts, views_per_step=None))
+    np.testing.assert_array_equal(np.asarray(rec7["loss"]), np.asarray(recn["loss"]))
     with pytest.raises(ValueError, match="views_per_step"):
-        jg.optimize_block(s1, cams, targets, n_steps=1, options=jg.OptimizeOptions(views_per_step=7))
+        jg.OptimizeOptions(views_per_step=0)
     with pytest.raises(ValueError, match="n_steps"):
         jg.optimize_block(s1, cams, targets, n_steps=0)
     with pytest.raises(ValueError, match="targets"):
@@ -430,7 +434,7 @@ def test_optimize_block_average_is_the_ema_of_the_iterates():
     """`average` returns the EMA of the iterates; reference: the iterates of shorter
     blocks from the same state and key (a block's first j steps do not depend on its length)."""
     mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
-    base = dict(learning_rate=0.05, renderer=soft_silhouette, views_per_step=2)
+    base = dict(learning_rate=0.05, adam_quantile=1.0, renderer=soft_silhouette, views_per_step=2)
     n, a = 4, 0.7
     start = lambda: jg.init_optimizer_state(mesh, jax.random.key(3))
     xs = [np.asarray(mesh.vertices, np.float64)]
@@ -458,7 +462,7 @@ def test_optimize_block_flags_nonfinite_step_and_keeps_state():
 
     state = jg.init_optimizer_state(mesh, jax.random.key(0))
     x0 = np.asarray(state.mesh.vertices)
-    opts = jg.OptimizeOptions(renderer=nan_renderer)
+    opts = jg.OptimizeOptions(renderer=nan_renderer, learning_rate=3e-2, adam_quantile=1.0, views_per_step=None)
     state, rec = jg.optimize_block(state, cams, targets, n_steps=2, options=opts)
     assert np.all(np.asarray(rec["status"]) == 2)
     np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)
@@ -468,7 +472,8 @@ def test_optimize_block_flags_nonfinite_step_and_keeps_state():
         spike = 0.0 * jnp.sum(jnp.sqrt(jnp.abs(mesh.vertices)))
         return soft_silhouette(mesh, cameras, channels=channels) + spike
 
-    opts = jg.OptimizeOptions(renderer=nan_gradient_renderer)
+    opts = jg.OptimizeOptions(renderer=nan_gradient_renderer, learning_rate=3e-2, adam_quantile=1.0,
+                              views_per_step=None)
     state, rec = jg.optimize_block(state, cams, targets, n_steps=2, options=opts)
     assert np.all(np.isfinite(np.asarray(rec["loss"]))) and np.all(np.asarray(rec["status"]) == 2)
     np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)

@@ -217,7 +217,8 @@ def test_photometric_steps_stay_finite_on_extreme_photos(case):
     start = jg.Mesh.from_numpy(*(np.asarray(x) for x in gt.to_numpy()))
     med = float(np.median(photos[..., :3][photos[..., 3] > 0.5]))
     state = jg.init_optimizer_state(start, jax.random.key(0), albedo=(med, med, med))
-    state, rec = jg.optimize_block(state, cams, fit, n_steps=40, options=jg.OptimizeOptions(learning_rate=1e-2))
+    state, rec = jg.optimize_block(state, cams, fit, n_steps=40, options=jg.OptimizeOptions(learning_rate=1e-2, adam_quantile=1.0,
+                                                                                               views_per_step=None))
     assert np.all(np.asarray(rec["status"]) != 2)
     assert np.all(np.isfinite(np.asarray(state.mesh.vertices))) and np.all(np.isfinite(np.asarray(state.appearance.albedo)))
     photo = np.asarray(rec["photo"])
@@ -234,7 +235,8 @@ def test_directional_lighting_is_estimated_from_raycast_photos():
     fit = jnp.asarray(np.concatenate([photos[..., :3] * photos[..., 3:], photos[..., 3:]], -1))
     start = jg.Mesh.from_numpy(*(np.asarray(x) for x in gt.to_numpy()))
     state = jg.init_optimizer_state(start, jax.random.key(0), albedo=(0.5, 0.5, 0.5), lighting=np.zeros((3, 3)))
-    state, rec = jg.optimize_block(state, cams, fit, n_steps=80, options=jg.OptimizeOptions(learning_rate=1e-3))
+    state, rec = jg.optimize_block(state, cams, fit, n_steps=80, options=jg.OptimizeOptions(learning_rate=1e-3, adam_quantile=1.0,
+                                                                                               views_per_step=None))
     lt = np.asarray(state.appearance.lighting)
     assert lt.shape == (3, 3)
     cos = lt @ light / np.linalg.norm(lt, axis=1)

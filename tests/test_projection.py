@@ -11,17 +11,17 @@ from jax.test_util import check_grads
 
 import jaxgenus as jg
 from jaxgenus.rendering._projection import projected_faces
+from _meshes import icosphere_arrays
 
 
 def _scene(n_views=3, z_shift=0.0):
-    s = trimesh.creation.icosphere(subdivisions=1)
     rng = np.random.default_rng(1)
-    v = s.vertices * (1.0 + 0.1 * rng.standard_normal((len(s.vertices), 1)))
+    v, f = icosphere_arrays(1, noise=0.1, seed=rng)  # draws the noise from rng, which goes on below
     verts = jnp.asarray(v, jnp.float64)
-    faces = jnp.asarray(s.faces)
+    faces = jnp.asarray(f)
     cams = jg.sphere_cameras(n_views, radius=2.6 + z_shift, fov_deg=45.0, resolution=32)
     f64 = lambda x: jnp.asarray(x, jnp.float64)
-    live = jnp.asarray(rng.random(len(s.faces)) > 0.1)  # some slots unused
+    live = jnp.asarray(rng.random(len(f)) > 0.1)  # some slots unused
     args = (verts, f64(cams.rotation), f64(cams.translation), f64(cams.focal), f64(cams.principal_point))
     # finite differences of the inverse-depth plane are only accurate away from edge-on
     # faces (its coefficients grow like 1/area): keep faces of at least 0.5 px² in every view

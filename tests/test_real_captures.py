@@ -25,6 +25,7 @@ from PIL import Image
 import jaxgenus as jg
 from jaxgenus.__main__ import main
 
+from _meshes import torus_trimesh
 from _raycast import camera_arrays, raycast
 
 N_VIEWS, RES = 16, 96
@@ -37,17 +38,12 @@ FRAMES = {
 }
 # a short schedule and a smaller face budget (about a minute a run on two CPU cores; the default
 # 12000 faces ran 2-3x slower for the same volume IoU, about 0.97); the defaults otherwise
-OPTIONS = jg.ReconstructOptions(n_cycles=3, steps_per_cycle=100, max_faces=5000)
+OPTIONS = jg.ReconstructOptions().updated(n_cycles=3, steps_per_cycle=100, max_faces=5000)
 CLI_SCHEDULE = ["--cycles", "3", "--steps", "100", "--max-faces", "5000"]
 MISLABELLED = [0, 3, 6, 9, 12, 15]  # views whose cameras are rotated among themselves in test 3
 
 
 # ----------------------------------------------------------------------------- helpers
-
-
-def _torus() -> trimesh.Trimesh:
-    t = trimesh.creation.torus(major_radius=0.7, minor_radius=0.25, major_sections=96, minor_sections=32)
-    return trimesh.Trimesh(t.vertices * np.asarray(TORUS_SCALE), t.faces, process=False)
 
 
 def _transform_cameras(cams: jg.Cameras, s: float, o) -> jg.Cameras:
@@ -100,7 +96,7 @@ def _view_names(n: int) -> list[str]:
 @pytest.fixture(scope="module")
 def scene():
     """The torus, its unit-frame cameras and their ray-cast RGBA images (anti-aliased, 3 x 3 rays)."""
-    torus = _torus()
+    torus = torus_trimesh(0.7, 0.25, 96, 32, scale=TORUS_SCALE)
     cams = jg.sphere_cameras(N_VIEWS, radius=3.0, fov_deg=40.0, resolution=RES)
     return torus, cams, raycast(cams, torus, supersample=3)
 

@@ -8,6 +8,7 @@ import trimesh
 
 import jaxgenus as jg
 from jaxgenus.__main__ import main
+from _meshes import torus
 
 
 @pytest.fixture(scope="module")
@@ -39,9 +40,9 @@ def test_bad_inputs_are_named(torus_scene):
     with pytest.raises(ValueError, match="views"):
         jg.reconstruct(img[:5], cams, 1)
     with pytest.raises(ValueError, match="adam_quantile"):
-        jg.ReconstructOptions(adam_quantile=0.0)
+        jg.ReconstructOptions().updated(adam_quantile=0.0)
     with pytest.raises(ValueError, match="average"):
-        jg.ReconstructOptions(average=1.0)
+        jg.ReconstructOptions().updated(average=1.0)
     with pytest.raises(ValueError, match="fine_below"):
         jg.ReconstructOptions(fine_below=-1.0)
     bad = img.copy()
@@ -67,7 +68,7 @@ def test_bad_inputs_are_named(torus_scene):
 def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     gt, cams, img = torus_scene
     before = img.copy()
-    opts = jg.ReconstructOptions(n_cycles=3, steps_per_cycle=100, initial_faces=800, max_faces=3000)
+    opts = jg.ReconstructOptions().updated(n_cycles=3, steps_per_cycle=100, initial_faces=800, max_faces=3000)
     rec = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(3))
     np.testing.assert_array_equal(img, before)  # inputs untouched
     assert rec.genus == 1 and rec.genus_ok
@@ -110,7 +111,7 @@ def test_visual_hull_of_torus_contains_it_and_keeps_the_hole(torus_scene):
 
 def test_auto_start_drills_missing_handles_into_a_lower_genus_hull(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=4000,
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=4000,
                                  hidden_handles="drill")
     rec = jg.reconstruct(img, cams, 3, options=opts)  # the hull has genus 1: 2 handles are added
     assert rec.history["start"] == "visual_hull+tunnels" and rec.history["tunnels"] == 2
@@ -128,7 +129,7 @@ def test_auto_start_drills_missing_handles_into_a_lower_genus_hull(torus_scene):
 
 def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_is_too_high(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=3000)
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=3000)
     rec = jg.reconstruct(img, cams, 0, options=opts)  # the hull keeps the torus' hole: genus 1, not 0
     assert rec.history["start"] == "primitive" and rec.history["hull_grid"] is None
     assert rec.genus == 0 and rec.genus_ok
@@ -136,7 +137,7 @@ def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_is_too_high(
 
 def test_refit_starts_from_the_previous_result(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=80, initial_faces=800, max_faces=3000, start="primitive",
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=80, initial_faces=800, max_faces=3000, start="primitive",
                                  weights=jg.LossWeights(containment=0.1))
     first = jg.reconstruct(img, cams, 1, options=opts)
     assert first.history["containment"][0] > 0  # the primitive in the hull's bounds pokes out of the silhouettes
@@ -150,7 +151,7 @@ def test_refit_starts_from_the_previous_result(torus_scene):
     assert rows == [(0, 2, 0, 2), (0, 2, 1, 2), (1, 2, 0, 2), (1, 2, 1, 2)] and rec.history["cycles"][-1]["fit"] == 1
     assert any(line.startswith("refit 1/1: start: primitive+refit") for line in lines)
     assert np.all(np.isfinite(rec.history["containment"])) and np.all(rec.history["containment"] >= 0)
-    plain = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, weights=jg.LossWeights()))
+    plain = jg.reconstruct(img, cams, 1, options=opts.updated(weights=jg.LossWeights()))
     assert np.all(plain.history["containment"] == 0)  # off by default: not computed
     assert rec.history["seconds"] > rec.history["cycles"][-1]["elapsed"]  # the first fit's time is counted
     for bad in (-1, 1.5, True):
@@ -166,7 +167,7 @@ def test_a_refit_that_fits_worse_is_dropped(torus_scene, monkeypatch):
     import jaxgenus.pipeline._reconstruct as R
 
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=60, initial_faces=800, max_faces=3000)
+    opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=60, initial_faces=800, max_faces=3000)
     first = jg.reconstruct(img, cams, 1, options=opts)
     refit_start = R._refit_start
 
@@ -197,7 +198,7 @@ def test_default_refits_stop_when_a_refit_gains_little(torus_scene, monkeypatch)
     import jaxgenus.pipeline._reconstruct as R
 
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=20, initial_faces=800, max_faces=3000,
+    opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=20, initial_faces=800, max_faces=3000,
                                  coarse_resolution=32)
     assert opts.refit_count(64, 64) == 2
     monkeypatch.setattr(R, "_fits_worse", lambda new, old: "")  # keep every refit: only the stop rule acts
@@ -232,7 +233,7 @@ def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
 
 def test_same_key_same_result(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=10, initial_faces=600, max_faces=1500)
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=10, initial_faces=600, max_faces=1500)
     key = jax.random.key(7)
     a = jg.reconstruct(img, cams, 1, options=opts, key=key)
     b = jg.reconstruct(img, cams, 1, options=opts, key=key)  # the caller's key is not consumed (donated)
@@ -275,11 +276,6 @@ def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
     assert ours.edge_lengths()[0] == 1.4 and ours.edge_lengths()[-1] == pytest.approx(1.0)
 
 
-def _torus(major, minor):
-    t = trimesh.creation.torus(major_radius=major, minor_radius=minor, major_sections=96, minor_sections=32)
-    return jg.Mesh.from_numpy(np.asarray(t.vertices, np.float32), np.asarray(t.faces))
-
-
 def test_hull_thickness_matches_a_torus_tube_radius():
     """2 V / A of a torus is its tube radius: the hull's measure, in pixels, against it."""
     from jaxgenus.capture._frame import pixel_footprint
@@ -287,7 +283,7 @@ def test_hull_thickness_matches_a_torus_tube_radius():
 
     cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
     for minor in (0.05, 0.25):
-        alpha = jg.render_targets(_torus(0.7, minor), cams)[..., 3]
+        alpha = jg.render_targets(torus(0.7, minor, 96, 32, dtype=np.float32), cams)[..., 3]
         lo, hi = visual_hull_bounds(alpha, cams)
         pixel = pixel_footprint(cams, 0.5 * (lo + hi))
         got = hull_thickness(alpha, cams, 64, pixel)
@@ -297,7 +293,7 @@ def test_hull_thickness_matches_a_torus_tube_radius():
 
 def test_thin_shapes_switch_to_the_fine_preset():
     cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=64)
-    img = jg.render_targets(_torus(0.7, 0.05), cams)  # tube radius 1.5 px
+    img = jg.render_targets(torus(0.7, 0.05, 96, 32, dtype=np.float32), cams)  # tube radius 1.5 px
     opts = jg.ReconstructOptions(steps_per_cycle=4)
     rec = jg.reconstruct(img, cams, 1, options=opts)
     h = rec.history
@@ -305,14 +301,14 @@ def test_thin_shapes_switch_to_the_fine_preset():
     assert rec.options == opts.fine() and len(h["cycles"]) == 5 and h["loss"].shape == (20,)
     assert rec.genus == 1
     off = jg.reconstruct(img, cams, 1, options=jg.ReconstructOptions(n_cycles=1, steps_per_cycle=2, fine_below=0.0))
-    assert not off.history["fine"] and off.history["hull_thickness"] is None and off.options.sigma == 0.1
+    assert not off.history["fine"] and off.history["hull_thickness"] is None and off.options.render.sigma == 0.1
 
 
 def test_thin_switch_measures_the_level_the_first_cycles_fit():
     """A tube 1.5 px thick at 64² is 6 px thick at 256²: fitted through 64² copies it is still
     thin there, so fine() applies; fitted at full size (`coarse_resolution=0`) it does not."""
     cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=256)
-    img = jg.render_targets(_torus(0.7, 0.05), cams)
+    img = jg.render_targets(torus(0.7, 0.05, 96, 32, dtype=np.float32), cams)
     opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=2, coarse_resolution=64)
     lines = []
     rec = jg.reconstruct(img, cams, 1, options=opts, log=lines.append)

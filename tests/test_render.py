@@ -11,16 +11,10 @@ import pytest
 import trimesh
 
 import jaxgenus as jg
+from _meshes import icosphere
 from dense_reference import dense_render
 
 ALL = ("alpha", "normal", "depth", "shaded")
-
-
-def _sphere(sub=2, noise=0.1, seed=0, capacity=None):
-    s = trimesh.creation.icosphere(subdivisions=sub)
-    rng = np.random.default_rng(seed)
-    v = s.vertices * (1.0 + noise * rng.standard_normal((len(s.vertices), 1)))
-    return jg.Mesh.from_numpy(v, s.faces, capacity=capacity)
 
 
 def _with_vertices(mesh, v):
@@ -60,7 +54,7 @@ def _value_and_grad(mesh, cams, channels=ALL, **kw):
     ],
 )
 def test_matches_dense_reference(channels, cull, sigma, gamma):
-    mesh = _sphere()
+    mesh = icosphere(2, noise=0.1)
     cams = jg.sphere_cameras(2, radius=4.0, resolution=24)
     c = sum(jg.rendering.CHANNEL_SIZES[x] for x in channels)
     w = _weights((2, 24, 24, c))
@@ -84,7 +78,7 @@ def test_matches_dense_reference(channels, cull, sigma, gamma):
 
 def test_two_tier_plan_matches_dense_reference():
     """Faces larger than the small window go to the big tier and are rendered in full."""
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(1, radius=3.0, resolution=24)
     plan = jg.RasterPlan(window=5, max_faces=80, big_window=24, max_big_faces=80)
     img, info = jg.render(mesh, cams, channels=ALL, sigma=0.5, plan=plan, return_info=True)
@@ -246,18 +240,18 @@ def test_face_crossing_near_plane_is_skipped_and_finite():
 
 @pytest.mark.parametrize("sigma", [1e-6, 10.0])
 def test_sigma_range_is_finite(sigma):
-    _finite(_sphere(sub=1), jg.sphere_cameras(2, radius=3.0, resolution=16), sigma=sigma)
+    _finite(icosphere(1, noise=0.1), jg.sphere_cameras(2, radius=3.0, resolution=16), sigma=sigma)
 
 
 @pytest.mark.parametrize("gamma", [1e-4, 1.0])
 def test_gamma_range_is_finite(gamma):
-    img, g = _finite(_sphere(sub=1), jg.sphere_cameras(2, radius=3.0, resolution=16), gamma=gamma)
+    img, g = _finite(icosphere(1, noise=0.1), jg.sphere_cameras(2, radius=3.0, resolution=16), gamma=gamma)
     assert float(jnp.max(jnp.abs(g))) > 0
 
 
 @pytest.mark.parametrize("scale", [1e-3, 1e3])
 def test_scaled_scene_is_scale_invariant(scale):
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
     scaled_mesh = _with_vertices(mesh, mesh.vertices * scale)
     scaled_cams = jg.Cameras(cams.rotation, cams.translation * scale, cams.focal, cams.principal_point, 16, 16)
@@ -269,14 +263,14 @@ def test_scaled_scene_is_scale_invariant(scale):
 
 def test_scaled_mesh_fixed_cameras_is_finite():
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     plan = jg.RasterPlan(window=16, max_faces=80)
     for scale in (1e-3, 1e3):  # a dot, and cameras inside a huge sphere
         _finite(_with_vertices(mesh, mesh.vertices * scale), cams, plan=plan)
 
 
 def test_mesh_outside_view_renders_background():
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
     far = _with_vertices(mesh, mesh.vertices + jnp.array([50.0, 0.0, 0.0]))
     img, g = _finite(far, cams, background={"normal": (0.1, 0.2, 0.3), "depth": 7.0, "shaded": 0.5})
@@ -289,8 +283,8 @@ def test_mesh_outside_view_renders_background():
 
 
 def test_padding_never_covers_a_pixel():
-    tight = _sphere(sub=1)
-    padded = _sphere(sub=1, capacity=200)
+    tight = icosphere(1, noise=0.1)
+    padded = icosphere(1, noise=0.1, capacity=200)
     cams = jg.sphere_cameras(3, radius=3.0, resolution=20)
     a = jg.render(tight, cams, channels=ALL)
     b = jg.render(padded, cams, channels=ALL)
@@ -301,7 +295,7 @@ def test_padding_never_covers_a_pixel():
 
 
 def test_channel_order_and_sizes():
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
     full = jg.render(mesh, cams, channels=ALL)
     assert full.shape == (2, 16, 16, 6)
@@ -321,7 +315,7 @@ def test_channel_order_and_sizes():
 
 
 def test_silhouette_only_call_does_no_blend_work():
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
     jaxpr = str(jax.make_jaxpr(lambda v: jg.render(_with_vertices(mesh, v), cams, channels=("alpha",)))(
         mesh.vertices))
@@ -332,7 +326,7 @@ def test_silhouette_only_call_does_no_blend_work():
 
 
 def test_jit_scan_value_and_grad_with_camera_subsets():
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(6, radius=3.0, resolution=16)
     plan = jg.plan_render(mesh, cams)
     target = jg.render(_with_vertices(mesh, mesh.vertices * 0.9), cams, channels=("alpha", "normal"), plan=plan)
@@ -355,7 +349,7 @@ def test_jit_scan_value_and_grad_with_camera_subsets():
 
 
 def test_vmap_over_meshes_and_cameras():
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
     plan = jg.plan_render(mesh, cams, face_margin=1.5)
     verts = jnp.stack([mesh.vertices, mesh.vertices * 0.8])
@@ -371,7 +365,7 @@ def test_vmap_over_meshes_and_cameras():
 
 
 def test_overflow_is_counted():
-    mesh = _sphere(sub=1)
+    mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=32)
     _, info = jg.render(mesh, cams, return_info=True)  # plan chosen from the geometry
     assert int(info.n_overflow) == 0 and int(jnp.min(info.n_visible)) > 0
@@ -398,14 +392,14 @@ def test_overflow_is_counted():
     ],
 )
 def test_bad_arguments_raise(kwargs, name):
-    mesh = _sphere(sub=0)
+    mesh = icosphere(0, noise=0.1)
     cams = jg.sphere_cameras(1, resolution=8)
     with pytest.raises(ValueError, match=name):
         jg.render(mesh, cams, **kwargs)
 
 
 def test_bad_types_raise():
-    mesh = _sphere(sub=0)
+    mesh = icosphere(0, noise=0.1)
     cams = jg.sphere_cameras(1, resolution=8)
     with pytest.raises(ValueError, match="mesh"):
         jg.render(mesh.vertices, cams)

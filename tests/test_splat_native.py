@@ -6,12 +6,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import trimesh
 
 import jaxgenus as jg
 from jaxgenus.rendering import _faces
 from jaxgenus.rendering._splat import SplatConfig, Tier, splat
 from jaxgenus.rendering._splat_native import splat_all
+from _meshes import icosphere
 
 RES = 24
 # (attrs, want_depth): cov only; cov + normal; cov + normal + shaded + depth
@@ -19,10 +19,7 @@ CHANNELS = [((), False), (("normal",), False), (("normal", "shaded"), True)]
 
 
 def _scene(dtype, attrs, want_depth, sigma=0.7, gamma=0.02):
-    s = trimesh.creation.icosphere(subdivisions=2)
-    rng = np.random.default_rng(0)
-    v = s.vertices * (1.0 + 0.1 * rng.standard_normal((len(s.vertices), 1)))
-    mesh = jg.Mesh.from_numpy(np.asarray(v, dtype), s.faces)
+    mesh = icosphere(2, noise=0.1, seed=0, dtype=dtype)
     mesh = jg.Mesh(mesh.vertices.astype(dtype), mesh.faces, mesh.n_vertices, mesh.n_faces)
     # close cameras: the sphere overflows the 24 x 24 image, so faces are partly off-image
     cams = jg.sphere_cameras(3, radius=2.6, fov_deg=45.0, resolution=RES)

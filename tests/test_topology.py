@@ -6,11 +6,7 @@ import trimesh
 
 import jaxgenus as jg
 from conftest import shared_mesh_table, shared_meshes_dir
-
-
-def _torus(capacity=None):
-    m = trimesh.creation.torus(1.0, 0.3, major_sections=24, minor_sections=12)
-    return jg.Mesh.from_numpy(m.vertices, m.faces, capacity=capacity), m
+from _meshes import torus, torus_trimesh
 
 
 def _trimesh_chi(v, f):
@@ -19,7 +15,7 @@ def _trimesh_chi(v, f):
 
 @pytest.mark.parametrize("capacity", [None, 2000, (700, 1500)])
 def test_torus_and_sphere_counts(capacity):
-    mesh, m = _torus(capacity)
+    mesh, m = torus(capacity=capacity), torus_trimesh()
     assert jg.euler_characteristic(mesh) == m.euler_number == 0
     assert jg.genus(mesh) == 1
     assert jg.is_closed_manifold(mesh)
@@ -43,7 +39,7 @@ def test_components_and_per_component_genus():
 
 
 def test_open_mesh_is_reported():
-    mesh, m = _torus()
+    mesh = torus()
     v, f = mesh.to_numpy()
     open_mesh = jg.Mesh.from_numpy(v, f[1:])
     assert not jg.is_closed_manifold(open_mesh)
@@ -78,7 +74,7 @@ def test_nonmanifold_vertex_is_reported():
 
 
 def test_flipped_face_is_reported():
-    mesh, _ = _torus()
+    mesh = torus()
     v, f = mesh.to_numpy()
     f = f.copy()
     f[5] = f[5, ::-1]
@@ -89,7 +85,7 @@ def test_flipped_face_is_reported():
 
 
 def test_invalid_counts_give_status_not_crash():
-    mesh, _ = _torus(capacity=2000)
+    mesh = torus(capacity=2000)
     broken = jg.Mesh(mesh.vertices, mesh.faces, jnp.int32(10), mesh.n_faces)  # indices beyond n_vertices
     assert int(jg.mesh_report(broken).status) == 1
     too_many = jg.Mesh(mesh.vertices, mesh.faces, mesh.n_vertices, jnp.int32(5000))
@@ -99,7 +95,7 @@ def test_invalid_counts_give_status_not_crash():
 
 
 def test_ffi_under_jit_scan_and_vmap():
-    mesh, _ = _torus(capacity=2000)
+    mesh = torus(capacity=2000)
 
     @jax.jit
     def run(m):
@@ -122,7 +118,7 @@ def test_ffi_under_jit_scan_and_vmap():
 
 
 def test_padding_is_harmless_and_input_untouched():
-    mesh, m = _torus(capacity=4096)
+    mesh, m = torus(capacity=4096), torus_trimesh()
     v0 = np.array(mesh.vertices)
     r = jg.mesh_report(mesh)
     assert int(r.n_faces) == len(m.faces) and int(r.n_vertices) == len(m.vertices)

@@ -4,7 +4,7 @@ frame. Depends on `geometry` only.
 """
 
 from jaxgenus.capture._camera_files import load_cameras
-from jaxgenus.capture._frame import pixel_footprint, scene_frame
+from jaxgenus.capture._frame import SceneFrame, pixel_footprint, scene_frame
 from jaxgenus.capture._hull import hull_thickness, largest_component, visual_hull, visual_hull_bounds
 from jaxgenus.capture._images import LoadedImages, load_images
 from jaxgenus.capture._pairing import pair_images
@@ -12,6 +12,7 @@ from jaxgenus.capture._targets import Targets, check_targets
 
 __all__ = [
     "LoadedImages",
+    "SceneFrame",
     "Targets",
     "check_targets",
     "hull_thickness",

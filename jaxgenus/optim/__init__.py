@@ -4,6 +4,7 @@ large-steps solves, uniform Adam, and `optimize_block`. Depends on `geometry` an
 
 from jaxgenus.optim._adam import GradientTransformation, UniformAdamState, uniform_adam
 from jaxgenus.optim._carving import carving_term
+from jaxgenus.optim._compilations import count_compilations
 from jaxgenus.optim._containment import containment_penalty, outside_distance
 from jaxgenus.optim._largesteps import (
     SolveInfo,
@@ -20,6 +21,7 @@ from jaxgenus.optim._optimize import (
     RECORD_KEYS,
     init_optimizer_state,
     optimize_block,
+    StepRecord,
     optimize_steps,
 )
 from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras
@@ -32,9 +34,11 @@ __all__ = [
     "OptimizerState",
     "RECORD_KEYS",
     "SolveInfo",
+    "StepRecord",
     "UniformAdamState",
     "carving_term",
     "containment_penalty",
+    "count_compilations",
     "from_differential",
     "image_loss",
     "init_optimizer_state",

@@ -33,8 +33,7 @@ from jaxtyping import Array, Float
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._containment import containment_penalty
 from jaxgenus.geometry import bilaplacian_energy, inversion_penalty
-from jaxgenus.rendering import render
-from jaxgenus.rendering import face_colors
+from jaxgenus.rendering import RenderSettings, face_colors, render
 
 __all__ = ["CLIP_LOW", "CLIP_HIGH", "LossWeights", "albedo_smoothness", "image_loss", "image_terms", "objective",
            "render_channels"]
@@ -48,33 +47,24 @@ _CHARBONNIER = 1e-3
 class LossWeights:
     """Static weights of the objective's terms (0 skips a term entirely).
 
-    Defaults: `alpha = 1`, `normal = 1` (each image term is a mean over the
-    pixels, so they are O(1) and resolution-independent), `bilaplacian = 0`
-    (the large-steps parametrization already smooths; raise it, e.g. to
-    `1e-2 / n_vertices`, to penalize curvature explicitly -- `||L x||^2` is a sum over
-    vertices), and `inversion = 1` (zero unless a triangle flips; one face
-    folded flat onto itself, `det J = -1`, costs as much as the whole image term
-    can). `photo` weighs the photometric term (photo targets; shading varies less
-    with the normal than a normal map does, and 6 was measured best among 1, 3, 6
-    and 10 on the kitten: CD 0.66x, 0.60x, 0.51x, 0.52x the silhouette-only run's);
-    `albedo_smoothness` the albedo's edge differences (photo targets; on the bunny,
-    1 lets a constant albedo take up shading (16-20 % spread, CD 0.81x), 100 flattens
-    a textured one (CD 0.79x), 20 does both cases: spread 3 %, texture correlation
-    0.97, CD 0.71x and 0.51x). Larger inversion weights also unfold every face, but the gradient
-    spike of a fold inflates uniform Adam's second moment, which then shrinks
-    all later steps (docs/stability.md: at lambda = 1, learning rate 0.5, the
-    image loss after 100 steps is 0.034 with weight 1 and 0.117 with weight 1e3).
-    `containment` weighs `containment_penalty` (pixels outside the target
-    silhouettes beyond a 1 px margin, Huber, summed over the sampled views, mean over the
-    vertices; `objective(..., outside=...)`, which `reconstruct` passes when the weight is
-    set). Off by default: at 0.1 it pulls back the slivers the soft silhouette gradient
-    barely sees (the thin gecko at 128²: CD 0.027 -> 0.011, no more spikes), but on the
-    gecko from 256² images the native cycle folded (inversion penalty 691) and ended at
-    IoU 0.23, and the heptoroid from 1024² fitted worse (CD 0.0021 -> 0.0033;
-    docs/reconstruction.md).
-    `carve` weighs `carving_term` (normal maps only: the visible surface moves away from the
-    camera where its normal is more than 37 degrees from the target's; value 0, a force).
-    Off here; `reconstruct` sets it in refits (`ReconstructOptions.refit_carve`).
+    Attributes:
+        alpha, normal: the image terms (each a mean over the pixels, so O(1) and
+            resolution-independent).
+        bilaplacian: `||L x||^2`, a sum over the vertices (default 0: the large-steps
+            parametrization already smooths; e.g. `1e-2 / n_vertices` penalizes curvature).
+        inversion: triangle inversion (zero unless a triangle flips; one face folded flat
+            onto itself costs as much as the whole image term can). Larger weights also
+            unfold every face, but a fold's gradient spike then inflates uniform Adam's
+            second moment and shrinks later steps (docs/stability.md).
+        photo: the photometric term of photo targets (docs/photometric.md for the choice).
+        albedo_smoothness: the albedo's mean squared edge difference (photo targets); it
+            separates shading, which follows the normals, from texture.
+        containment: `containment_penalty` (pixels outside the target silhouettes beyond a
+            1 px margin; `objective(..., outside=...)`). Off by default: it removes the
+            slivers of thin shapes at low resolution but folded a thin shape at higher
+            resolution (docs/reconstruction.md).
+        carve: `carving_term` (normal maps only; value 0, a force). Off here; `reconstruct`
+            sets it in refits (`ReconstructOptions.refit_carve`).
     """
 
     alpha: float = 1.0
@@ -167,14 +157,15 @@ def objective(
     *,
     weights: LossWeights = LossWeights(),
     renderer: Callable | None = None,
-    render_kwargs: dict | None = None,
+    render_settings: RenderSettings | None = None,
     appearance: tuple | None = None,
     outside: Float[Array, "N H W"] | None = None,
 ) -> tuple[Float[Array, ""], dict[str, Array]]:
     """The total objective at `mesh.vertices` and its weighted terms.
 
-    Renders `mesh` with `renderer(mesh, cameras, channels=..., **render_kwargs)`
-    (default `jaxgenus.render`) for the channels `target` has, and returns
+    Renders `mesh` with `renderer(mesh, cameras, channels=..., **render_settings.kwargs())`
+    (default `jaxgenus.render`; `render_settings` None passes none) for the channels
+    `target` has, and returns
     `(total, terms)` where `terms` holds the weighted `alpha`, `normal`,
     `bilaplacian` and `inversion` values that were computed (weight 0: absent).
     `appearance=(albedo (Vcap, 3), lighting (3, 24) or (3, 3))`: `target` is a photo, fitted
@@ -184,7 +175,7 @@ def objective(
     """
     renderer = render if renderer is None else renderer
     photo = appearance is not None
-    kw = dict(render_kwargs or {})
+    kw = {} if render_settings is None else render_settings.kwargs()
     terms = {}
     if photo:
         albedo, lighting = appearance

@@ -22,7 +22,7 @@ steps and options; the state buffers are donated.
 from __future__ import annotations
 
 import dataclasses
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import equinox as eqx
 import jax
@@ -36,7 +36,7 @@ from jaxgenus.optim._loss import LossWeights, objective, render_channels
 from jaxgenus.geometry import Mesh
 from jaxgenus.geometry import uniform_laplacian
 from jaxgenus.optim._pyramid import crop_views, target_boxes
-from jaxgenus.rendering import LIGHTING_SHAPE, lighting_model
+from jaxgenus.rendering import LIGHTING_SHAPE, RenderSettings, lighting_model
 
 __all__ = [
     "Appearance",
@@ -44,8 +44,8 @@ __all__ = [
     "OptimizerState",
     "RECORD_KEYS",
     "init_optimizer_state",
+    "StepRecord",
     "optimize_block",
-    "optimize_block_compilations",
     "optimize_steps",
 ]
 
@@ -86,10 +86,11 @@ class OptimizeOptions:
         lambda_: large-steps `lambda` (19, as in Nicolet et al.).
         b1, b2, eps: uniform-Adam parameters.
         adam_quantile: quantile of the shared second moment (1: the max, Nicolet's;
-            see `uniform_adam`).
+            below 1, a few vertices with outlier gradients, e.g. on a tiny handle,
+            do not freeze the rest of the mesh; see `uniform_adam`).
         weights: `LossWeights` of the objective.
         views_per_step: number of cameras sampled (without replacement) per step;
-            `None` uses all of them every step.
+            `None`, or at least the number of cameras, uses all of them every step.
         cg_rtol, cg_max_iter: stopping rule of the CG solves.
         average: the block returns the exponential moving average of its iterates,
             `x_avg <- average * x_avg + (1 - average) * x` after every step (from
@@ -99,23 +100,23 @@ class OptimizeOptions:
         albedo_learning_rate, lighting_learning_rate: plain-Adam steps of the
             per-vertex albedo and of the lighting (photo targets only).
         crop: render a random `crop x crop` window of each sampled view, centred in
-            the target's silhouette box (`jaxgenus.optim._pyramid.crop_views`), instead of
+            the target's silhouette box (`jaxgenus.optim.crop_views`), instead of
             the whole image; 0 (default) renders whole views. The cost of a step then
             follows the crop, not the image size.
-        renderer: `renderer(mesh, cameras, channels=..., **render_kwargs)`;
+        renderer: `renderer(mesh, cameras, channels=..., **render.kwargs())`;
             `None` is `jaxgenus.render`.
-        render_kwargs: extra keyword arguments of the renderer as `(name, value)` pairs
-            (e.g. `(("sigma", 0.5), ("gamma", 0.01))`).
+        render: `RenderSettings` passed to the renderer (`None`: none are passed,
+            the renderer's own defaults).
     """
 
-    learning_rate: float = 3e-2
+    learning_rate: float = 8e-2
     lambda_: float = DEFAULT_LAMBDA
     b1: float = 0.9
     b2: float = 0.999
     eps: float = 1e-8
-    adam_quantile: float = 1.0
+    adam_quantile: float = 0.99
     weights: LossWeights = LossWeights()
-    views_per_step: int | None = None
+    views_per_step: int | None = 4
     cg_rtol: float = 1e-6
     cg_max_iter: int = 2000
     average: float = 0.0
@@ -123,7 +124,7 @@ class OptimizeOptions:
     albedo_learning_rate: float = 1e-2
     lighting_learning_rate: float = 5e-2
     renderer: Callable | None = None
-    render_kwargs: tuple = ()
+    render: RenderSettings | None = None
 
     def __post_init__(self):
         if not self.learning_rate > 0:
@@ -141,8 +142,10 @@ class OptimizeOptions:
             raise ValueError(f"crop must be an int >= 0, got {self.crop!r}")
         if not isinstance(self.weights, LossWeights):
             raise ValueError(f"weights must be a LossWeights, got {type(self.weights).__name__}")
-        if not isinstance(self.render_kwargs, tuple):
-            raise ValueError("render_kwargs must be a tuple of (name, value) pairs")
+        if not (isinstance(self.adam_quantile, (int, float)) and 0.0 < self.adam_quantile <= 1.0):
+            raise ValueError(f"adam_quantile must be in (0, 1], got {self.adam_quantile!r}")
+        if self.render is not None and not isinstance(self.render, RenderSettings):
+            raise ValueError(f"render must be a RenderSettings or None, got {type(self.render).__name__}")
 
     def adam(self):
         return uniform_adam(self.learning_rate, self.b1, self.b2, self.eps, self.adam_quantile)
@@ -222,116 +225,138 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting
     )
 
 
+class StepRecord(eqx.Module):
+    """What each optimizer step reports (`RECORD_KEYS`; see there): scalars inside a step,
+    `(n_steps,)` arrays after a block. `record["loss"]` reads a field by name."""
+
+    loss: Array
+    alpha: Array
+    normal: Array
+    bilaplacian: Array
+    inversion: Array
+    photo: Array
+    albedo_smoothness: Array
+    containment: Array
+    grad_norm: Array
+    cg_iterations_forward: Array
+    cg_iterations_backward: Array
+    cg_residual: Array
+    inverted_faces: Array
+    status: Array
+
+    def __getitem__(self, name: str) -> Array:
+        if name not in RECORD_KEYS:
+            raise KeyError(name)
+        return getattr(self, name)
+
+    def keys(self) -> tuple[str, ...]:
+        return RECORD_KEYS
+
+
+class _Carry(NamedTuple):
+    """The scan carry of `optimize_steps`: `x`, `u`, the last pulled-back gradient, the Adam
+    state, the PRNG key, the iterate average, and the photo fit's `(albedo, lighting)` and
+    their Adam state (None when not a photo fit)."""
+
+    x: Array
+    u: Array
+    gu: Array
+    adam: UniformAdamState
+    key: Array
+    x_avg: Array
+    app: tuple | None
+    app_adam: UniformAdamState | None
+
+
+def _views(key, cameras, targets, boxes, outside, k: int | None, crop: int):
+    """The step's views: all, or `k` sampled without replacement; through random crops when `crop`."""
+    n_views = len(cameras)
+    if k is None or k >= n_views:
+        cams, tgt, box, out = cameras, targets, boxes, outside
+    else:
+        idx = jax.random.choice(key, n_views, (k,), replace=False)
+        cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
+        out = None if outside is None else outside[idx]
+    if crop:
+        cams, tgt = crop_views(jax.random.fold_in(key, 1), cams, tgt, box, crop)
+    return cams, tgt, out
+
+
+def _appearance_step(app, g_app, app_state, rates, lr_scale, vmask):
+    """Plain Adam on (albedo, lighting), albedo kept >= 0 and 0 on padding; also whether it is finite."""
+    upd, new_state = plain_adam(1.0).update(g_app, app_state)
+    upd = tuple(u * (lr * lr_scale) for u, lr in zip(upd, rates))
+    albedo = jnp.where(vmask, jnp.maximum(app[0] + upd[0], 0.0), 0.0)
+    new = (albedo, app[1] + upd[1])
+    return new, new_state, jnp.all(jnp.isfinite(new[0])) & jnp.all(jnp.isfinite(new[1]))
+
+
+def _record(loss, terms, gx, info_b, info_f, ok, inverted) -> StepRecord:
+    status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
+    zero = jnp.zeros((), loss.dtype)
+    return StepRecord(
+        loss=loss, **{name: terms.get(name, zero) for name in RECORD_KEYS[1:8]},
+        grad_norm=jnp.sqrt(jnp.sum(gx * gx)), cg_iterations_forward=info_f.iterations,
+        cg_iterations_backward=info_b.iterations, cg_residual=jnp.maximum(info_f.residual, info_b.residual),
+        inverted_faces=inverted, status=status,
+    )
+
+
 def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale,
-                   outside=None):
+                   outside=None) -> tuple[OptimizerState, StepRecord]:
     """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program)."""
-    mesh = state.mesh
+    mesh, rest = state.mesh, state.rest_vertices
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
-    fmask = mesh.face_mask
-    lam = options.lambda_
-    adam = options.adam()
-    n_views = len(cameras)
-    k = options.views_per_step
-    avg = options.average
+    adam, avg = options.adam(), options.average
     crop = options.crop if options.crop and options.crop < max(cameras.height, cameras.width) else 0
     boxes = target_boxes(targets, margin=crop // 8) if crop else None
-
+    outside = None if crop else outside  # crops move the principal points: the whole-view maps no longer line up
     photo = state.appearance is not None
-    app_adam = plain_adam(1.0) if photo else None
-    app_lr = (options.albedo_learning_rate, options.lighting_learning_rate)
-
-    if crop:  # crops move the cameras' principal points: the whole-view maps no longer line up
-        outside = None
+    rates = (options.albedo_learning_rate, options.lighting_learning_rate)
 
     def loss_fn(x, app, cams, tgt, out):
         m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
-        return objective(
-            m,
-            cams,
-            tgt,
-            state.rest_vertices,
-            weights=options.weights,
-            renderer=options.renderer,
-            render_kwargs=dict(options.render_kwargs),
-            appearance=app,
-            outside=out,
-        )
+        return objective(m, cams, tgt, rest, weights=options.weights, renderer=options.renderer,
+                         render_settings=options.render, appearance=app, outside=out)
 
-    def appearance_step(app, g_app, app_state, ok):
-        """Plain Adam on (albedo, lighting), albedo kept >= 0 and 0 on padding."""
-        upd, new_state = app_adam.update(g_app, app_state)
-        upd = tuple(u * (lr * lr_scale) for u, lr in zip(upd, app_lr))
-        albedo = jnp.where(vmask, jnp.maximum(app[0] + upd[0], 0.0), 0.0)
-        new = (albedo, app[1] + upd[1])
-        ok = ok & jnp.all(jnp.isfinite(new[0])) & jnp.all(jnp.isfinite(new[1]))
-        return new, new_state, ok
+    def solve(b, x0):
+        return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
 
-    solve = lambda b, x0: largesteps_solve(laplacian, b, lam, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
-
-    def step(carry, _):
-        x, u, gu_prev, adam_state, key, xa, app, app_state = carry
-        key, sub = jax.random.split(key)
-        if k is None or k >= n_views:
-            cams, tgt, box, out = cameras, targets, boxes, outside
-        else:
-            idx = jax.random.choice(sub, n_views, (k,), replace=False)
-            cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
-            out = None if outside is None else outside[idx]
-        if crop:
-            cams, tgt = crop_views(jax.random.fold_in(sub, 1), cams, tgt, box, crop)
-        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out)
+    def step(c: _Carry, _):
+        key, sub = jax.random.split(c.key)
+        cams, tgt, out = _views(sub, cameras, targets, boxes, outside, options.views_per_step, crop)
+        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(c.x, c.app, cams, tgt, out)
         gx = jnp.where(vmask, gx, 0.0)
-        gu, info_b = solve(gx, gu_prev)
-        updates, new_adam = adam.update(gu, adam_state)
-        updates = jax.tree.map(lambda t: t * lr_scale, updates)
-        new_u = jnp.where(vmask, u + updates, 0.0)
-        new_x, info_f = solve(new_u, x)
+        gu, info_b = solve(gx, c.gu)
+        updates, new_adam = adam.update(gu, c.adam)
+        new_u = jnp.where(vmask, c.u + jax.tree.map(lambda t: t * lr_scale, updates), 0.0)
+        new_x, info_f = solve(new_u, c.x)
         ok = jnp.isfinite(loss) & jnp.all(jnp.isfinite(gx)) & jnp.all(jnp.isfinite(new_u)) & jnp.all(jnp.isfinite(new_x))
-        new_app, new_app_state = app, app_state
+        new_app, new_app_adam = c.app, c.app_adam
         if photo:
-            new_app, new_app_state, ok = appearance_step(app, g_app, app_state, ok)
+            new_app, new_app_adam, finite = _appearance_step(c.app, g_app, c.app_adam, rates, lr_scale, vmask)
+            ok = ok & finite
         keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(ok, a, b), new, old)
-        x, u, gu, adam_state, app, app_state = keep(
-            (new_x, new_u, gu, new_adam, new_app, new_app_state), (x, u, gu_prev, adam_state, app, app_state)
-        )
-        xa = avg * xa + (1.0 - avg) * x if avg > 0 else x
-        status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
-        zero = jnp.zeros((), x.dtype)
-        record = {name: terms.get(name, zero) for name in ("alpha", "normal", "bilaplacian", "inversion", "photo",
-                                                              "albedo_smoothness", "containment")}
-        record.update(
-            loss=loss,
-            grad_norm=jnp.sqrt(jnp.sum(gx * gx)),
-            cg_iterations_forward=info_f.iterations,
-            cg_iterations_backward=info_b.iterations,
-            cg_residual=jnp.maximum(info_f.residual, info_b.residual),
-            inverted_faces=inverted_face_count(x, state.rest_vertices, mesh.faces, fmask),
-            status=status,
-        )
-        return (x, u, gu, adam_state, key, xa, app, app_state), record
+        x, u, gu, adam_state, app, app_adam = keep((new_x, new_u, gu, new_adam, new_app, new_app_adam),
+                                                   (c.x, c.u, c.gu, c.adam, c.app, c.app_adam))
+        x_avg = avg * c.x_avg + (1.0 - avg) * x if avg > 0 else x
+        inverted = inverted_face_count(x, rest, mesh.faces, mesh.face_mask)
+        return _Carry(x, u, gu, adam_state, key, x_avg, app, app_adam), _record(loss, terms, gx, info_b, info_f, ok,
+                                                                               inverted)
 
-    x0 = mesh.vertices
-    u0 = jnp.where(vmask, to_differential(laplacian, x0, lam), 0.0)
-    ap = state.appearance
-    app0 = (ap.albedo, ap.lighting) if photo else None
-    carry = (x0, u0, jnp.zeros_like(x0), state.adam, state.key, x0, app0, ap.adam if photo else None)
-    (_, _, _, adam_state, key, x, app, app_state), record = jax.lax.scan(step, carry, None, length=n_steps)
-    new_mesh = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
-    new_app = Appearance(albedo=app[0], lighting=app[1], adam=app_state) if photo else None
-    new_state = OptimizerState(
-        mesh=new_mesh, adam=adam_state, rest_vertices=state.rest_vertices, step=state.step + n_steps, key=key,
-        appearance=new_app,
-    )
-    return new_state, {name: record[name] for name in RECORD_KEYS}
+    x0, ap = mesh.vertices, state.appearance
+    u0 = jnp.where(vmask, to_differential(laplacian, x0, options.lambda_), 0.0)
+    carry = _Carry(x0, u0, jnp.zeros_like(x0), state.adam, state.key, x0, (ap.albedo, ap.lighting) if photo else None,
+                   ap.adam if photo else None)
+    end, record = jax.lax.scan(step, carry, None, length=n_steps)
+    new_app = Appearance(albedo=end.app[0], lighting=end.app[1], adam=end.app_adam) if photo else None
+    new_mesh = Mesh(vertices=end.x_avg, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
+    return OptimizerState(mesh=new_mesh, adam=end.adam, rest_vertices=rest, step=state.step + n_steps, key=end.key,
+                          appearance=new_app), record
 
 
 _optimize_block_jit = jax.jit(optimize_steps, static_argnames=("n_steps", "options"), donate_argnames=("state",))
-
-
-def optimize_block_compilations() -> int:
-    """Number of executables `optimize_block` has compiled in this process (one per static configuration)."""
-    return _optimize_block_jit._cache_size() if hasattr(_optimize_block_jit, "_cache_size") else 0
 
 
 def optimize_block(
@@ -342,7 +367,7 @@ def optimize_block(
     n_steps: int,
     options: OptimizeOptions = OptimizeOptions(),
     lr_scale=1.0,
-) -> tuple[OptimizerState, dict[str, Array]]:
+) -> tuple[OptimizerState, StepRecord]:
     """Run `n_steps` large-steps uniform-Adam steps in one jit-compiled `lax.scan`.
 
     Args:
@@ -358,8 +383,8 @@ def optimize_block(
             so a learning-rate schedule over blocks does not recompile.
 
     Returns:
-        `(new_state, record)` with `record[name]` an `(n_steps,)` array for every
-        name in `RECORD_KEYS`.
+        `(new_state, record)`: a `StepRecord` whose fields (`record["loss"]`, ...,
+        every name in `RECORD_KEYS`) are `(n_steps,)` arrays.
     """
     if not isinstance(n_steps, int) or n_steps < 1:
         raise ValueError(f"n_steps must be a positive int, got {n_steps!r}")
@@ -372,6 +397,4 @@ def optimize_block(
         raise ValueError(
             f"targets must have shape ({len(cameras)}, {cameras.height}, {cameras.width}, C), got {targets.shape}"
         )
-    if options.views_per_step is not None and options.views_per_step > len(cameras):
-        raise ValueError(f"options.views_per_step ({options.views_per_step}) exceeds the {len(cameras)} cameras")
     return _optimize_block_jit(state, cameras, targets, n_steps, options, jnp.asarray(lr_scale, state.mesh.vertices.dtype))

@@ -1,7 +1,8 @@
 """The optimize/remesh cycles of `reconstruct`: one cycle body, two drivers.
 
 `cycle` is one cycle: `optimize_steps` (a `lax.scan` of large-steps uniform Adam
-on the soft-raster loss), the rasterizer's overflow count at the result, and,
+on the soft-raster loss), the rasterizer's overflow count at the result (with a
+JAX-splat plan only: the native CPU kernel draws every face whole), and,
 when the cycle's target edge length is > 0, the native V-cycle remesher through
 the XLA FFI, carrying the Adam moments and, in photometric fits, the albedo
 and its moments (the rest shape of the inversion penalty
@@ -18,8 +19,8 @@ re-planned from the geometry every cycle (plans rounded to buckets so nearby
 meshes share one compiled cycle), or, in one jit, planned once for the final
 face count.
 
-Both return the final state, one step record and one `CycleRecord` per cycle,
-and the set of plans used.
+Both return a `CycleRun`: the final state, the per-step arrays, one `CycleRecord`
+per cycle, the plans used and the compilations.
 """
 
 from __future__ import annotations
@@ -27,34 +28,72 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.experimental import io_callback
 
+from jaxgenus.geometry import Cameras, RemeshOptions, RemeshStatus, euler_characteristic, remesh_in_jit
+from jaxgenus.optim import (Appearance, OptimizeOptions, OptimizerState, StepRecord, count_compilations,
+                            optimize_steps)
 from jaxgenus.pipeline._history import CycleRecord
-from jaxgenus.optim import Appearance, OptimizeOptions, OptimizerState, optimize_steps
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.geometry import RemeshOptions, RemeshStatus, remesh_in_jit
-from jaxgenus.rendering import RasterPlan, plan_render
-from jaxgenus.rendering import render
-from jaxgenus.geometry import euler_characteristic
+from jaxgenus.rendering import RasterPlan, plan_render, render
 
-__all__ = ["CycleOutput", "cycle", "cycle_compilations", "run_one_jit", "run_per_cycle"]
+__all__ = ["CycleOutput", "CycleRun", "Level", "cycle", "run_one_jit", "run_per_cycle"]
 
 _WRAP = 1 << 31  # the host clock is read in microseconds modulo 2^31 (int32): it wraps every 36 min
+
+
+class Level(NamedTuple):
+    """What one cycle fits: a pyramid level of the targets.
+
+    Attributes:
+        cameras: the level's cameras (scaled with the images).
+        targets: `(N, h, w, C)` targets at that level.
+        crop: > 0: the cycle fits random `crop x crop` windows of them.
+        outside: the targets' outside-distance maps (containment), or None.
+        factor: the images were downsampled by this factor.
+    """
+
+    cameras: Cameras
+    targets: jax.Array
+    crop: int
+    outside: jax.Array | None
+    factor: int
 
 
 class CycleOutput(NamedTuple):
     """What one `cycle` reports (arrays; stacked over cycles by `run_one_jit`)."""
 
-    record: dict  # (n_steps,) arrays, the keys of RECORD_KEYS
+    record: StepRecord  # (n_steps,) arrays
     overflow: jax.Array  # faces drawn incompletely at the end of the optimizer block
     status: jax.Array  # RemeshStatus of the remesh, -1 when there was none
     clock: tuple  # host clock (us mod 2^31) after the optimizer and at the end
     mesh: object  # the mesh after the cycle
+
+
+@dataclasses.dataclass(frozen=True)
+class CycleRun:
+    """What a driver returns.
+
+    Attributes:
+        state: the optimizer state after the last cycle.
+        steps: per-step arrays of every cycle, concatenated (`RECORD_KEYS` and `time`).
+        cycles: one `CycleRecord` per cycle.
+        plans: distinct rasterizer plans used.
+        compilations: new compiled executables per program (`"cycle"`, `"all_cycles"`).
+        callback_seconds: time spent in the caller's callback (not part of the run).
+    """
+
+    state: OptimizerState
+    steps: dict
+    cycles: tuple[CycleRecord, ...]
+    plans: int
+    compilations: dict
+    callback_seconds: float
 
 
 def _clock_us(_after) -> np.ndarray:
@@ -69,7 +108,9 @@ def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
     if app is not None:  # the albedo and its Adam moments ride along (the lighting is global)
         columns += [app.albedo, app.adam.mu[0], app.adam.nu[0]]
     attrs = jnp.concatenate(columns, axis=1)
-    mesh, carried, info = remesh_in_jit(state.mesh, dataclasses.replace(options, target_edge_length=length), attrs)
+    # the budget inside a run is the capacity bucket that `max_faces` chose (room for a split phase)
+    options = dataclasses.replace(options, target_edge_length=length, max_faces=None)
+    mesh, carried, info = remesh_in_jit(state.mesh, options, attrs)
     carried = carried.astype(adam.mu.dtype)
     new_adam = adam._replace(mu=carried[:, :3], nu=jnp.maximum(carried[:, 3:6], 0.0))
     if app is not None:
@@ -84,22 +125,27 @@ def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
 
 
 def cycle(state, cams, targets, outside, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
-          remesh_options: RemeshOptions):
+          remesh_options: RemeshOptions | None):
     """One cycle: `n_steps` optimizer steps at `lr_scale` (`outside`: the targets' outside-distance
-    maps, or None), then a remesh to `length` (world units) if `length > 0`."""
-    kw = dict(opt.render_kwargs)
+    maps, or None), then a remesh to `length` (world units) if `length > 0` and `remesh_options`."""
     clock = jax.ShapeDtypeStruct((), jnp.int32)
     state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside)
-    _, info = render(state.mesh, cams, channels=("alpha",), sigma=kw["sigma"], plan=kw["plan"], return_info=True)
-    t_opt = io_callback(_clock_us, clock, record["loss"][-1], ordered=True)
-    state, status = jax.lax.cond(
-        length > 0,
-        lambda s: _remesh_state(s, length, remesh_options),
-        lambda s: (s, jnp.int32(-1)),
-        state,
-    )
+    overflow = jnp.zeros((), jnp.int32)
+    if opt.render is not None and opt.render.plan is not None:  # only a planned splat can truncate faces
+        _, info = render(state.mesh, cams, channels=("alpha",), sigma=opt.render.sigma, plan=opt.render.plan,
+                         return_info=True)
+        overflow = info.n_overflow
+    t_opt = io_callback(_clock_us, clock, record.loss[-1], ordered=True)
+    status = jnp.int32(-1)
+    if remesh_options is not None:  # None: the connectivity is kept (no remesh is traced)
+        state, status = jax.lax.cond(
+            length > 0,
+            lambda s: _remesh_state(s, length, remesh_options),
+            lambda s: (s, jnp.int32(-1)),
+            state,
+        )
     t_end = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
-    return state, CycleOutput(record, info.n_overflow, status, (t_opt, t_end), state.mesh)
+    return state, CycleOutput(record, overflow, status, (t_opt, t_end), state.mesh)
 
 
 _STATIC = ("n_steps", "opt", "remesh_options")
@@ -112,11 +158,6 @@ def _all_cycles(state, cams, targets, outside, lr_scales, lengths, *, n_steps, o
         return cycle(s, cams, targets, outside, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
 
     return jax.lax.scan(body, state, (lr_scales, lengths))
-
-
-def cycle_compilations() -> dict[str, int]:
-    """Compiled executables so far of the per-cycle (`cycle`) and one-jit (`all_cycles`) programs."""
-    return {k: (f._cache_size() if hasattr(f, "_cache_size") else 0) for k, f in (("cycle", _cycle_jit), ("all_cycles", _all_cycles))}
 
 
 def _plan_bucket(plan: RasterPlan) -> RasterPlan:
@@ -134,22 +175,12 @@ def _cycle_plan(mesh, cams, options) -> RasterPlan | None:
     also serves their crops (the same face sizes, fewer faces)."""
     if jax.default_backend() == "cpu":
         return None
-    return _plan_bucket(plan_render(mesh, cams, sigma=options.sigma, face_margin=1.3))
+    return _plan_bucket(plan_render(mesh, cams, sigma=options.render.sigma, face_margin=1.3))
 
 
 def _optimize_options(options: ReconstructOptions, plan: RasterPlan | None, crop: int = 0) -> OptimizeOptions:
-    return OptimizeOptions(
-        crop=crop,
-        learning_rate=options.learning_rate,
-        lambda_=options.lambda_,
-        adam_quantile=options.adam_quantile,
-        weights=options.weights,
-        views_per_step=options.views_per_step,
-        average=options.average,
-        albedo_learning_rate=options.albedo_learning_rate,
-        lighting_learning_rate=options.lighting_learning_rate,
-        render_kwargs=(("sigma", options.sigma), ("gamma", options.gamma), ("plan", plan)),
-    )
+    """The optimizer's settings of a cycle: the run's, with the cycle's plan and crop."""
+    return dataclasses.replace(options.optimize, crop=crop, render=dataclasses.replace(options.render, plan=plan))
 
 
 def _us_between(a, b) -> float:
@@ -167,50 +198,55 @@ def _row(c: int, out, *, remeshed: bool, loss, compilations: int, seconds: float
     )
 
 
-def run_per_cycle(state, levels, world_lengths, options, remesh_options, t0, callback):
-    """One compiled cycle per cycle; `levels[c] = (cameras, targets, crop, outside)` is what cycle c
-    fits (a pyramid level; `crop` > 0: random crops of that size; `outside`: the targets'
-    outside-distance maps, or None) and `world_lengths[c]`
-    the remesh length after cycle c (0: none).
+def _host_steps(record, n_steps: int, elapsed: float) -> dict:
+    """One cycle's step record as numpy arrays, with `time` (seconds since the start) at its last step."""
+    steps = {k: np.asarray(record[k]) for k in record.keys()}
+    steps["time"] = np.full(n_steps, np.nan)
+    steps["time"][-1] = elapsed
+    return steps
 
-    Returns `(state, steps, cycles, plans, t0)`; `t0` is moved forward by the time
-    spent in `callback(row, mesh)` so that it is not counted.
-    """
-    steps, cycles, plans = [], [], set()
-    for c in range(options.n_cycles):
+
+def _joined(steps: list[dict]) -> dict:
+    return {k: np.concatenate([s[k] for s in steps]) for k in steps[0]}
+
+
+def run_per_cycle(state, levels: list[Level], world_lengths, options: ReconstructOptions, t0: float,
+                  callback: Callable | None) -> CycleRun:
+    """One compiled cycle per cycle: cycle c fits `levels[c]` and remeshes to `world_lengths[c]`
+    after (0: none). `t0` is the run's start (`perf_counter`); `callback(row, mesh)` is called
+    after every cycle, and the time spent in it is reported, not counted."""
+    steps, cycles, plans, compiled, waited = [], [], set(), 0, 0.0
+    n = options.steps_per_cycle
+    for c, level in enumerate(levels):
         tc = time.perf_counter()
-        before = sum(cycle_compilations().values())
-        cams, targets, crop, outside = levels[c]
-        plan = _cycle_plan(state.mesh, cams, options)
+        plan = _cycle_plan(state.mesh, level.cameras, options)
         plans.add(plan)
-        state, out = _cycle_jit(
-            state, cams, targets, outside, jnp.float32(options.lr_decay**c), jnp.float32(world_lengths[c]),
-            n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, crop), remesh_options=remesh_options,
-        )
-        out = jax.device_get(out)
-        record = {k: np.asarray(v) for k, v in out.record.items()}
-        record["time"] = np.full(options.steps_per_cycle, np.nan)
-        record["time"][-1] = time.perf_counter() - t0
-        steps.append(record)
-        row = _row(
-            c, out, remeshed=world_lengths[c] > 0, loss=record["loss"][-1],
-            compilations=sum(cycle_compilations().values()) - before,
-            seconds=time.perf_counter() - tc, elapsed=time.perf_counter() - t0,
-        )
+        with count_compilations() as counts:
+            state, out = _cycle_jit(
+                state, level.cameras, level.targets, level.outside, jnp.float32(options.lr_decay**c),
+                jnp.float32(world_lengths[c]), n_steps=n, opt=_optimize_options(options, plan, level.crop),
+                remesh_options=options.remesh,
+            )
+            out = jax.device_get(out)
+        now = time.perf_counter()
+        steps.append(_host_steps(out.record, n, now - t0 - waited))
+        row = _row(c, out, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1], compilations=counts["cycle"],
+                   seconds=now - tc, elapsed=now - t0 - waited)
+        compiled += counts["cycle"]
         cycles.append(row)
         if callback is not None:
             tb = time.perf_counter()
             callback(row, jax.tree.map(jnp.asarray, out.mesh))
-            t0 += time.perf_counter() - tb
-    return state, steps, cycles, plans, t0
+            waited += time.perf_counter() - tb
+    return CycleRun(state, _joined(steps), tuple(cycles), len(plans), {"cycle": compiled, "all_cycles": 0}, waited)
 
 
 def _growing_plan(mesh, cams, world_lengths, options) -> RasterPlan:
     """A JAX-splat plan sized for the final face count, for the whole run."""
     faces0 = int(mesh.n_faces)
     lengths = [w for w in world_lengths if w > 0]
-    growth = 1.0 if not lengths else min(options.max_faces / faces0, (lengths[0] / lengths[-1]) ** 2)
-    plan = plan_render(mesh, cams, sigma=options.sigma, face_margin=1.3 * max(growth, 1.0))
+    growth = 1.0 if not lengths else min(options.face_budget / faces0, (lengths[0] / lengths[-1]) ** 2)
+    plan = plan_render(mesh, cams, sigma=options.render.sigma, face_margin=1.3 * max(growth, 1.0))
     # the shape changes under this plan: keep a big tier (faces up to twice the window
     # or the largest now, for an eighth of the budget) for faces that grow or stretch
     return _plan_bucket(RasterPlan(
@@ -219,39 +255,39 @@ def _growing_plan(mesh, cams, world_lengths, options) -> RasterPlan:
     ))
 
 
-def run_one_jit(state, levels, world_lengths, options, remesh_options, t0, callback):
-    """Every cycle in one compiled scan, with one plan sized for the final face count (same returns).
+def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructOptions, t0: float,
+                callback: Callable | None) -> CycleRun:
+    """Every cycle in one compiled scan, with one plan sized for the final face count (same
+    arguments and returns as `run_per_cycle`).
 
     One program has one image size: every cycle fits the last level (`levels[-1]`,
     the images' own resolution, through crops when they are large)."""
-    n = options.n_cycles
-    cams, targets, crop, outside = levels[-1]
-    before = sum(cycle_compilations().values())
-    plan = None if jax.default_backend() == "cpu" else _growing_plan(state.mesh, cams, world_lengths, options)
+    n, level = options.n_cycles, levels[-1]
+    plan = None if jax.default_backend() == "cpu" else _growing_plan(state.mesh, level.cameras, world_lengths, options)
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
-    state, out = _all_cycles(
-        state, cams, targets, outside, lr_scales, jnp.asarray(world_lengths, jnp.float32),
-        n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, crop), remesh_options=remesh_options,
-    )
-    out = jax.device_get(out)
+    with count_compilations() as counts:
+        state, out = _all_cycles(
+            state, level.cameras, level.targets, level.outside, lr_scales, jnp.asarray(world_lengths, jnp.float32),
+            n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, level.crop),
+            remesh_options=options.remesh,
+        )
+        out = jax.device_get(out)
     wall = time.perf_counter() - t0
     t_end = np.asarray(out.clock[1], np.int64)
     elapsed = [wall - _us_between(t_end[c], t_end[-1]) for c in range(n)]
     steps, cycles = [], []
     for c in range(n):
         one = jax.tree.map(lambda a: a[c], out)
-        record = {k: np.asarray(v) for k, v in one.record.items()}
-        record["time"] = np.full(options.steps_per_cycle, np.nan)
-        record["time"][-1] = elapsed[c]
-        steps.append(record)
+        steps.append(_host_steps(one.record, options.steps_per_cycle, elapsed[c]))
         cycles.append(_row(
-            c, one, remeshed=world_lengths[c] > 0, loss=record["loss"][-1],
-            compilations=(sum(cycle_compilations().values()) - before) if c == 0 else 0,
+            c, one, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1],
+            compilations=counts["_all_cycles"] if c == 0 else 0,
             seconds=elapsed[c] - (elapsed[c - 1] if c else 0.0), elapsed=elapsed[c],
         ))
+    waited = 0.0
     if callback is not None:
         tb = time.perf_counter()
         for c in range(n):
             callback(cycles[c], jax.tree.map(lambda a: jnp.asarray(a[c]), out.mesh))
-        t0 += time.perf_counter() - tb
-    return state, steps, cycles, {plan}, t0
+        waited = time.perf_counter() - tb
+    return CycleRun(state, _joined(steps), tuple(cycles), 1, {"cycle": 0, "all_cycles": counts["_all_cycles"]}, waited)

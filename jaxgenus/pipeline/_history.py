@@ -1,4 +1,5 @@
-"""The record of a reconstruction run: typed, with dict-style reads for scripts and JSON.
+"""What a reconstruction run returns: the `Reconstruction` and its typed record, with dict-style
+reads for scripts and JSON.
 
 `History` holds the per-step arrays of every optimizer step (`RECORD_KEYS` of
 `optimize_block` plus `time`), one `CycleRecord` per optimize/remesh cycle, and
@@ -15,7 +16,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-__all__ = ["CycleRecord", "History"]
+from jaxgenus.geometry import Cameras, Mesh
+from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.rendering import render_photo
+
+__all__ = ["CycleRecord", "GenusEstimate", "GenusEvidence", "HandleRecord", "History", "Reconstruction"]
 
 
 class _Readable:
@@ -35,6 +40,65 @@ class _Readable:
     @classmethod
     def _names(cls) -> tuple[str, ...]:
         return tuple(f.name for f in dataclasses.fields(cls))
+
+    def to_json(self) -> dict:
+        """Plain Python values (the fields that are not None) for `json.dumps`."""
+        return {k: _plain(getattr(self, k)) for k in self._names() if k in self}
+
+
+def _plain(v):
+    if isinstance(v, _Readable):
+        return v.to_json()
+    if isinstance(v, Mapping):
+        return {k: _plain(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.ndarray):
+        return v.tolist()
+    return v
+
+
+@dataclasses.dataclass(frozen=True)
+class GenusEvidence(_Readable):
+    """The genus of the largest visual-hull component on one grid (`-1`: no hull there)."""
+
+    resolution: int
+    closing: int
+    genus: int
+
+
+@dataclasses.dataclass(frozen=True)
+class GenusEstimate(_Readable):
+    """The genus a run estimated from its silhouettes.
+
+    Attributes:
+        genus: the estimate (the most frequent genus of the hulls; ties: the lower).
+        agreement: the share of the hulls that have it, in [0, 1].
+        evidence: one `GenusEvidence` per hull built.
+    """
+
+    genus: int
+    agreement: float
+    evidence: tuple[GenusEvidence, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class HandleRecord(_Readable):
+    """Where one handle of the start came from.
+
+    Attributes:
+        source: `"hull"` (the visual hull has it), `"images"` (opened where the images show a
+            hole), `"drilled"` (a small tunnel at a spread-out site), `"primitive"` or `"sphere"`.
+        centre, radius, depth: the cut that opened it (`"images"` only; user units).
+        loss_before, loss_after: the image loss before and after that cut (`"images"` only).
+    """
+
+    source: str
+    centre: tuple[float, float, float] | None = None
+    radius: float | None = None
+    depth: float | None = None
+    loss_before: float | None = None
+    loss_after: float | None = None
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,9 +136,6 @@ class CycleRecord(_Readable):
     fit: int = 0
     fits: int = 1
 
-    def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in self._names() if k in self}
-
 
 @dataclasses.dataclass(frozen=True)
 class History(_Readable):
@@ -98,7 +159,7 @@ class History(_Readable):
         compilations: new compiled executables per jitted piece.
         targets: what the images held (`"silhouette"`, `"normals"` or `"photo"`).
         frame: `{"centre", "scale"}` of the canonical frame (`x_world = scale * x + centre`).
-        genus_estimate: `{"genus", "evidence"}` when the genus was estimated, else None.
+        genus_estimate: a `GenusEstimate` when the genus was estimated, else None.
         silhouette_iou: per view, the result's silhouette IoU with the target's (alpha 0.5).
         start_silhouette_iou: the same for the start mesh.
         normal_error_deg: per view, the mean angle between rendered and target normals
@@ -110,10 +171,7 @@ class History(_Readable):
         resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
             downsampled by `factor` to `size = (height, width)`, through random
             `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`).
-        handles: per handle of the start, where it came from: `{"source": "hull"}` (the
-            visual hull has it), `{"source": "images", "centre", "radius", ...}` (opened
-            where the images show a hole; centre and radius in user units) or
-            `{"source": "drilled"}` (a small tunnel at a spread-out site).
+        handles: per handle of the start, a `HandleRecord` of where it came from.
         ok: the result matches its images (see `jaxgenus.pipeline._verdict`); warnings: why not,
             and what else to know.
     """
@@ -131,14 +189,14 @@ class History(_Readable):
     compilations: Mapping[str, int]
     targets: str = "silhouette"
     frame: Mapping[str, Any] | None = None
-    genus_estimate: Mapping[str, Any] | None = None
+    genus_estimate: GenusEstimate | None = None
     silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     start_silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     normal_error_deg: list[float] | None = None
     photo_error: list[float] | None = None
     lighting: list | None = None
     resolution: list[dict] = dataclasses.field(default_factory=list)
-    handles: list[dict] = dataclasses.field(default_factory=list)
+    handles: tuple[HandleRecord, ...] = ()
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)
 
@@ -156,15 +214,46 @@ class History(_Readable):
     def to_json(self) -> dict:
         """Plain Python values (lists, floats, ints, str, None) for `json.dumps`."""
         out = {k: np.asarray(v).tolist() for k, v in self.steps.items()}
-        for k in self._names():
-            if k == "steps":
-                continue
-            v = getattr(self, k)
-            if k == "cycles":
-                v = [c.to_json() for c in v]
-            elif isinstance(v, Mapping):
-                v = dict(v)
-            elif isinstance(v, tuple):
-                v = list(v)
-            out[k] = v
+        out.update({k: _plain(getattr(self, k)) for k in self._names() if k != "steps"})
         return out
+
+
+@dataclasses.dataclass(frozen=True)
+class Reconstruction:
+    """Result of `reconstruct`.
+
+    Attributes:
+        mesh: the final `Mesh` (`.to_numpy()` for arrays).
+        genus: genus of `mesh` (-1 when it is not a closed manifold).
+        genus_ok: `genus` equals the requested genus (0 for the sphere start).
+        history: a `History`: per-step arrays (`history["loss"]`, ...), one
+            `CycleRecord` per cycle (`history["cycles"]`), the start, the
+            thin-structure switch and the compilations.
+        options: the `ReconstructOptions` that ran (`options.fine()` when the run switched).
+        albedo: photo targets: `(V, 3)` float32 RGB albedo per vertex, row for row with
+            `mesh.to_numpy()[0]` (under the convention of `jaxgenus.render_photo`: the
+            lighting `history["lighting"]` has mean 1), else None.
+    """
+
+    mesh: Mesh
+    genus: int
+    genus_ok: bool
+    history: History
+    options: ReconstructOptions
+    albedo: np.ndarray | None = None
+
+    @property
+    def lighting(self) -> np.ndarray | None:
+        """Photo targets: the estimated lighting (`history["lighting"]`: `(3, 24)` harmonics or `(3, 3)`
+        directional, `options.lighting`), else None."""
+        lt = self.history.lighting
+        return None if lt is None else np.asarray(lt, np.float32)
+
+    def render_photo(self, cams: Cameras, **render_kwargs):
+        """Photo targets: RGBA renders of the result with its albedo and lighting in any `cams`
+        (user units; held-out views), `(N, H, W, 4)`."""
+        if self.albedo is None:
+            raise ValueError("render_photo needs a reconstruction from photo targets (albedo is None)")
+        pad = np.zeros((self.mesh.vertex_capacity, 3), np.float32)
+        pad[: len(self.albedo)] = self.albedo
+        return render_photo(self.mesh, cams, pad, self.lighting, **render_kwargs)

@@ -11,13 +11,14 @@ genus-0 one. Host-side (numpy, manifold3d, the numpy remesher).
 
 from __future__ import annotations
 
-from typing import NamedTuple
+import dataclasses
 
 import numpy as np
 
 from jaxgenus.geometry import Cameras
 from jaxgenus.capture import largest_component, visual_hull
 from jaxgenus.geometry import Mesh, capacity_bucket
+from jaxgenus.pipeline._history import GenusEstimate, GenusEvidence, HandleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.geometry import genus_primitive
 from jaxgenus.geometry import RemeshOptions, remesh
@@ -26,20 +27,26 @@ from jaxgenus.geometry import connected_components, euler_characteristic, genus 
 __all__ = ["HullTable", "Start", "drill_tunnels", "estimate_genus", "remeshed_start", "start_mesh"]
 
 
-class Start(NamedTuple):
+@dataclasses.dataclass(frozen=True)
+class Start:
     """A start mesh and where it came from.
 
     Attributes:
-        mesh: closed manifold `Mesh` in the capacity bucket of `options.max_faces`.
-        kind: `"visual_hull"`, `"visual_hull+tunnels"`, `"primitive"` or `"sphere"`.
+        mesh: closed manifold `Mesh` in the capacity bucket of `options.face_budget`.
+        kind: `"visual_hull"`, `"visual_hull+tunnels"`, `"primitive"`, `"sphere"`, or
+            `"fit+images"` (`+tunnels`) when hidden handles were opened from the images;
+            `+refit` per refit.
         hull_grid: `(resolution, closing)` of the visual hull used, or None.
-        tunnels: handles drilled into a visual hull of too low a genus.
+        tunnels: handles drilled because no image showed them.
+        handles: per handle, where it came from (`HandleRecord`; empty until the start
+            stage fills it in).
     """
 
     mesh: Mesh
     kind: str
     hull_grid: tuple[int, int] | None
     tunnels: int
+    handles: tuple[HandleRecord, ...] = ()
 
 
 class HullTable:
@@ -61,8 +68,8 @@ class HullTable:
         return self._built[key]
 
 
-def estimate_genus(hulls: HullTable, resolutions: tuple[int, ...]) -> dict:
-    """The object's genus as the silhouettes show it: `{"genus": g, "evidence": [...]}`.
+def estimate_genus(hulls: HullTable, resolutions: tuple[int, ...]) -> GenusEstimate:
+    """The object's genus as the silhouettes show it (a `GenusEstimate`).
 
     The genus of the largest component of the visual hull on each grid of
     `resolutions`, without and with a one-cell closing (which fills the thin
@@ -70,16 +77,16 @@ def estimate_genus(hulls: HullTable, resolutions: tuple[int, ...]) -> dict:
     (ties: the lower genus); `agreement` is the fraction of hulls that have it
     (the skull at 24 views of 128^2: 13, 9, 18 without closing and 6, 2, 7 with,
     so 2 at agreement 1/6; shapes whose holes all show: 1). Holes that no
-    silhouette shows are not counted. `evidence` lists `{"resolution", "closing",
-    "genus"}` for every hull (genus -1: no hull).
+    silhouette shows are not counted. `evidence` has a `GenusEvidence` for every hull
+    (genus -1: no hull).
     """
-    evidence = [{"resolution": r, "closing": c, "genus": hulls.get(r, c)[1]} for c in (0, 1) for r in resolutions]
-    found = [e["genus"] for e in evidence if e["genus"] >= 0]
+    evidence = tuple(GenusEvidence(r, c, hulls.get(r, c)[1]) for c in (0, 1) for r in resolutions)
+    found = [e.genus for e in evidence if e.genus >= 0]
     if not found:
         raise ValueError("images: no visual hull could be built from the silhouettes to estimate the genus")
     values, counts = np.unique(found, return_counts=True)
     best = int(np.argmax(counts))
-    return {"genus": int(values[best]), "agreement": float(counts[best] / len(found)), "evidence": evidence}
+    return GenusEstimate(int(values[best]), float(counts[best] / len(found)), evidence)
 
 
 def start_mesh(hulls: HullTable, genus: int, bounds, edge_length: float, options: ReconstructOptions) -> Start:
@@ -208,13 +215,13 @@ def _hull_start(hulls: HullTable, genus: int, target: float, options: Reconstruc
 
 
 def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOptions) -> Mesh | None:
-    """`mesh` remeshed to edge length `target` within `options.max_faces`, padded to its
+    """`mesh` remeshed to edge length `target` within `options.face_budget`, padded to its
     capacity bucket; None unless the result is one closed piece of genus `genus`."""
-    m, _ = remesh(mesh, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.max_faces))
+    m, _ = remesh(mesh, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.face_budget))
     v, f = m.to_numpy()
-    if len(f) > options.max_faces or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+    if len(f) > options.face_budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
         return None
-    return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces))
+    return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.face_budget))
 
 
 def _primitive_start(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:
@@ -224,4 +231,4 @@ def _primitive_start(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:
     centre, half = 0.5 * (lo + hi), 0.5 * (hi - lo)
     # shrink slightly inside the hull: the silhouettes then pull the surface outwards
     v = _axis_fit(v, centre - 0.9 * half, centre + 0.9 * half)
-    return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.max_faces))
+    return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(max(options.face_budget, len(f))))

@@ -29,17 +29,17 @@ is coarser than asked), photo views whose error is far above the others'
 
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import numpy as np
 
-from jaxgenus.geometry import Cameras
-from jaxgenus.geometry import Mesh
-from jaxgenus.rendering import render
-from jaxgenus.rendering import render_photo
 from jaxgenus.capture import Targets
+from jaxgenus.geometry import Cameras, Mesh
+from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.rendering import render, render_photo
 
-__all__ = ["Verdict", "judge", "photo_errors", "silhouette_ious"]
+__all__ = ["Evidence", "Verdict", "judge", "photo_errors", "silhouette_ious"]
 
 
 class Verdict(NamedTuple):
@@ -85,16 +85,41 @@ def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting
     return [float(err[i][both[i]].mean()) if both[i].any() else float("nan") for i in range(len(err))]
 
 
-def judge(result: Mesh, start: Mesh, cams: Cameras, targets: Targets, steps: dict, cycles, *, genus_ok: bool,
-          sigma: float, min_iou: float, outlier_gap: float, appearance=None, photos=None,
-          max_photo_error: float = 0.1) -> Verdict:
-    """Score `result` and `start` (canonical frame, with `cams` in it) against `targets` and decide.
+@dataclasses.dataclass(frozen=True)
+class Evidence:
+    """What the verdict compares (canonical frame).
 
-    Photo targets: `appearance = (albedo, lighting)` of the result and the straight RGBA `photos`."""
+    Attributes:
+        result, start: the fitted mesh and the mesh the fit started from.
+        cams: the cameras (canonical frame); targets: the run's `Targets`.
+        steps: the per-step arrays of the fit (`loss`, `status`, `inverted_faces`, ...).
+        cycles: the fit's `CycleRecord`s.
+        genus_ok: the result has the requested genus.
+        appearance: photo targets: `(albedo, lighting)` of the result, else None.
+        photos: photo targets: the straight RGBA photos, else None.
+    """
+
+    result: Mesh
+    start: Mesh
+    cams: Cameras
+    targets: Targets
+    steps: dict
+    cycles: tuple
+    genus_ok: bool
+    appearance: tuple | None = None
+    photos: np.ndarray | None = None
+
+
+def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
+    """Score the result and the start against the targets and decide (see the module doc), with the
+    thresholds of `options` (`min_view_iou`, `outlier_gap`, `max_photo_error`) and its renderer's `sigma`."""
+    e, sigma = evidence, options.render.sigma
+    result, start, cams, targets, steps, cycles = e.result, e.start, e.cams, e.targets, e.steps, e.cycles
+    min_iou, outlier_gap, max_photo_error = options.min_view_iou, options.outlier_gap, options.max_photo_error
     iou, nerr = silhouette_ious(result, cams, targets.alpha, sigma=sigma, normals=targets.normals)
     start_iou, _ = silhouette_ious(start, cams, targets.alpha, sigma=sigma)
     fail, warn = [], []
-    if not genus_ok:
+    if not e.genus_ok:
         fail.append("the result's genus is not the requested one")
     loss = np.asarray(steps["loss"])
     bad_steps = int(np.sum(np.asarray(steps["status"]) == 2))
@@ -125,8 +150,8 @@ def judge(result: Mesh, start: Mesh, cams: Cameras, targets: Targets, steps: dic
         warn.append(f"remeshes after cycles {hits} hit the face budget (edges longer than the images resolve; "
                     "raise max_faces for more detail)")
     perr = None
-    if appearance is not None:
-        perr = photo_errors(result, cams, photos, *appearance, sigma=sigma)
+    if e.appearance is not None:
+        perr = photo_errors(result, cams, e.photos, *e.appearance, sigma=sigma)
         med = float(np.nanmedian(perr))
         if not med <= max_photo_error:
             fail.append(f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian "

@@ -3,7 +3,7 @@ raster plans, `render`, and Lambertian shading of photos. Depends on `geometry` 
 """
 
 from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
-from jaxgenus.rendering._render import CHANNEL_SIZES, RenderInfo, render
+from jaxgenus.rendering._render import CHANNEL_SIZES, RenderInfo, RenderSettings, render
 from jaxgenus.rendering._shading import (
     LIGHTING_SHAPE,
     LIGHTING_SHAPES,
@@ -20,6 +20,7 @@ __all__ = [
     "LIGHTING_SHAPES",
     "RasterPlan",
     "RenderInfo",
+    "RenderSettings",
     "directional_lighting",
     "face_colors",
     "irradiance",

@@ -7,7 +7,9 @@ and is differentiated by autodiff; the per-pixel work is the face-major splat of
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import math
 
 import equinox as eqx
 import jax
@@ -22,11 +24,38 @@ from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
 from jaxgenus.rendering._splat import SplatConfig, Tier, splat
 from jaxgenus.rendering._splat_native import splat_all
 
-__all__ = ["render", "RenderInfo", "CHANNEL_SIZES"]
+__all__ = ["render", "RenderInfo", "RenderSettings", "CHANNEL_SIZES"]
 
 #: Number of image channels each requested channel contributes, in request order.
 CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1, "color": 3}
 _BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0)}
+
+
+@dataclasses.dataclass(frozen=True)
+class RenderSettings:
+    """The renderer's settings an optimizer or a verdict passes to `render` (immutable, hashable).
+
+    Attributes:
+        sigma: edge blur in pixels (see `render`).
+        gamma: depth softmax temperature.
+        plan: the JAX splat's `RasterPlan` (None: the native kernel on CPU, else planned per call).
+    """
+
+    sigma: float = 0.1
+    gamma: float = 0.01
+    plan: RasterPlan | None = None
+
+    def __post_init__(self):
+        for name in ("sigma", "gamma"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"render settings: {name} must be a positive number, got {v!r}")
+        if self.plan is not None and not isinstance(self.plan, RasterPlan):
+            raise ValueError(f"render settings: plan must be a RasterPlan or None, got {type(self.plan).__name__}")
+
+    def kwargs(self) -> dict:
+        """Keyword arguments of `render`."""
+        return {"sigma": self.sigma, "gamma": self.gamma, "plan": self.plan}
 
 
 class RenderInfo(eqx.Module):

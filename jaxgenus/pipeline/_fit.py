@@ -1,0 +1,157 @@
+"""One fit of `reconstruct`: from a start, the optimize/remesh cycles over the image pyramid, the
+verdict, and the `Reconstruction` it makes (mesh mapped back to the user's frame, typed `History`).
+
+The cycles fit the levels of the resolution schedule (`ReconstructOptions.coarse_resolution`);
+each remesh sizes its edges in pixels of the level the next cycle fits. The optimizer starts
+fresh (photo targets: the median colour as albedo, uniform light).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgenus.geometry import Mesh, genus as mesh_genus, is_closed_manifold
+from jaxgenus.optim import init_optimizer_state, outside_distance, pyramid_level, resolution_factors, scaled_cameras
+from jaxgenus.pipeline._cycles import CycleRun, Level, run_one_jit, run_per_cycle
+from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
+from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.pipeline._setup import Setup
+from jaxgenus.pipeline._start import Start
+from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
+from jaxgenus.rendering import LIGHTING_SHAPES
+
+__all__ = ["FitIndex", "fit"]
+
+
+@dataclasses.dataclass(frozen=True)
+class FitIndex:
+    """Which fit of a run this is: `fit` (0: the first; k: the k-th refit) of `fits` planned."""
+
+    fit: int = 0
+    fits: int = 1
+
+
+def _levels(setup: Setup, options: ReconstructOptions) -> list[Level]:
+    """The level each cycle fits: downsampled copies of the targets (the schedule), the
+    native level through crops when `optimize.crop` is set (only after downsampled cycles);
+    one program of `one_jit` fits the native level throughout."""
+    cams, tg = setup.cams, setup.targets
+    factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
+                                 options.native_cycles)
+    scheduled = factors[0] > 1
+    if options.one_jit:  # one program, one image size: the last level throughout
+        factors = [factors[-1]] * options.n_cycles
+    built = {}
+    for f in sorted(set(factors)):
+        level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
+        outside = (jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2))
+                   if options.optimize.weights.containment > 0 else None)
+        crop = options.optimize.crop if (f == 1 and scheduled) else 0
+        built[f] = Level(scaled_cameras(cams, f), jnp.asarray(level), crop, outside, f)
+    return [built[f] for f in factors]
+
+
+def _world_lengths(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[float]:
+    """The remesh edge length after each cycle (canonical units; 0: none), in pixels of the level
+    the next cycle fits."""
+    lengths = options.edge_lengths()
+    return [lengths[c] * setup.pixel * levels[min(c + 1, len(levels) - 1)].factor if c < len(lengths) else 0.0
+            for c in range(options.n_cycles)]
+
+
+def _initial_state(start: Start, setup: Setup, options: ReconstructOptions, key):
+    """A fresh optimizer state at the start; photo targets: the median colour of the photos' fully
+    covered pixels as albedo, uniform light."""
+    tg = setup.targets
+    if tg.kind != "photo":
+        return init_optimizer_state(start.mesh, key)
+    inside = tg.alpha >= 0.99
+    rgb = tg.fit[..., :3][inside] if inside.any() else tg.fit[..., :3][tg.alpha >= 0.5]
+    albedo = np.maximum(np.median(rgb, axis=0), 0.02).astype(np.float32)
+    return init_optimizer_state(start.mesh, key, albedo=albedo,
+                                lighting=np.zeros(LIGHTING_SHAPES[options.lighting], np.float32))
+
+
+def _result_genus(mesh: Mesh) -> int:
+    try:
+        return mesh_genus(mesh) if is_closed_manifold(mesh) else -1
+    except ValueError:
+        return -1
+
+
+def _estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
+    if estimate is None or estimate.agreement >= 0.5:
+        return []
+    return [f"the genus {estimate.genus} was estimated at a low agreement ({estimate.agreement:.0%} of the "
+            f"visual hulls: {[e.genus for e in estimate.evidence]}): give the genus if you know it"]
+
+
+def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
+    drilled = sum(h.source == "drilled" for h in handles)
+    if not drilled:
+        return []
+    return [f"{drilled} of {len(handles)} handles were drilled as small tunnels at spread-out sites: neither the "
+            "silhouettes nor the images showed where those holes are, so the genus is right but those handles "
+            "are probably not the object's own (history['handles'])"]
+
+
+def _schedule_line(options: ReconstructOptions, setup: Setup, levels: list[Level]) -> str:
+    cams = setup.cams
+    line = f"optimizing: {options.n_cycles} cycles x {options.steps_per_cycle} steps (the first one compiles)"
+    if levels[0].factor > 1:
+        line += (f"; images {cams.width}x{cams.height} fitted at 1/{', 1/'.join(str(lv.factor) for lv in levels)}"
+                 " of their size" + (f", native cycles through {levels[-1].crop}^2 crops" if levels[-1].crop else ""))
+    return line
+
+
+def _history(setup: Setup, start: Start, options: ReconstructOptions, run: CycleRun, verdict: Verdict,
+             levels: list[Level], seconds: float, index: FitIndex) -> History:
+    app = run.state.appearance
+    where = dict(n_cycles=options.n_cycles, fit=index.fit, fits=index.fits)
+    return History(
+        steps=run.steps, cycles=tuple(dataclasses.replace(c, **where) for c in run.cycles), seconds=seconds,
+        requested_genus=setup.genus, start=start.kind, tunnels=start.tunnels, hull_grid=start.hull_grid,
+        hull_thickness=setup.thickness, fine=setup.fine, render_plans=run.plans, compilations=run.compilations,
+        targets=setup.targets.kind, frame={"centre": setup.frame.centre.tolist(), "scale": setup.frame.scale},
+        genus_estimate=setup.estimate, silhouette_iou=verdict.silhouette_iou,
+        start_silhouette_iou=verdict.start_silhouette_iou, normal_error_deg=verdict.normal_error_deg,
+        photo_error=verdict.photo_error,
+        lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(), handles=start.handles,
+        resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop}
+                    for lv in levels],
+        ok=verdict.ok, warnings=verdict.warnings + _estimate_warnings(setup.estimate) + _handle_warnings(start.handles),
+    )
+
+
+def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: FitIndex, *, t0: float,
+        callback: Callable | None, say: Callable[[str], None]) -> Reconstruction:
+    """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
+    (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
+    levels = _levels(setup, options)
+    lengths = _world_lengths(setup, options, levels)
+    where = dict(n_cycles=options.n_cycles, fit=index.fit, fits=index.fits)
+    frame = setup.frame
+    user_callback = None if callback is None else (
+        lambda row, m: callback(dataclasses.replace(row, **where), frame.mesh_to_world(m)))
+    say(_schedule_line(options, setup, levels))
+    driver = run_one_jit if options.one_jit else run_per_cycle
+    run = driver(_initial_state(start, setup, options, key), levels, lengths, options, t0, user_callback)
+    mesh, app = run.state.mesh, run.state.appearance
+    g = _result_genus(mesh)
+    genus_ok = g == (0 if options.start == "sphere" else setup.genus)
+    photos = np.asarray(setup.images, np.float32) if setup.targets.kind == "photo" else None
+    verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
+                             None if app is None else (app.albedo, app.lighting), photos), options)
+    say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
+        f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views"
+        + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg"))
+    seconds = time.perf_counter() - t0 - run.callback_seconds
+    history = _history(setup, start, options, run, verdict, levels, seconds, index)
+    albedo = None if app is None else np.array(app.albedo[: int(mesh.n_vertices)], np.float32)
+    return Reconstruction(mesh=frame.mesh_to_world(mesh), genus=g, genus_ok=genus_ok, history=history,
+                          options=options, albedo=albedo)

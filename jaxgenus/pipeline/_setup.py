@@ -1,0 +1,104 @@
+"""The first stage of `reconstruct`: checked targets, the canonical frame, the genus, the settings.
+
+`prepare` validates the images once (`capture.check_targets`), maps the cameras to the
+canonical frame (the visual hull centred, about unit size: units and placement never
+matter), measures the world size of a pixel there (options are in pixels), estimates
+the genus when none is given, and switches to `options.fine()` when the visual hull is
+thinner than `fine_below` pixels of the level the first cycles fit. Its `Setup` is all
+that later stages read of the inputs; refits reuse it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import numpy as np
+
+from jaxgenus.capture import SceneFrame, Targets, check_targets, hull_thickness, pixel_footprint, scene_frame
+from jaxgenus.capture import visual_hull_bounds
+from jaxgenus.geometry import Cameras
+from jaxgenus.optim import resolution_factors
+from jaxgenus.pipeline._history import GenusEstimate
+from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.pipeline._start import HullTable, estimate_genus
+
+__all__ = ["Setup", "prepare"]
+
+
+@dataclasses.dataclass(frozen=True)
+class Setup:
+    """What `prepare` found: the stages after it read the inputs only through this.
+
+    Attributes:
+        images: the caller's images (read, never modified).
+        targets: the validated `Targets`.
+        world_cams: the caller's cameras; cams: the same in the canonical frame.
+        frame: the canonical frame (`x_world = scale * x + centre`).
+        bounds: `(lo, hi)` of the visual hull in the canonical frame.
+        pixel: world size (canonical units) of one pixel at the hull's centre.
+        hulls: the visual hulls of the run (built on first use, shared by the genus
+            estimate and the start).
+        genus: the requested or estimated genus.
+        estimate: the `GenusEstimate` when the genus was estimated, else None.
+        thickness: the visual hull's thickness in pixels of the images (None when
+            `fine_below` is 0).
+        fine: the run switched to `options.fine()`.
+        options: the settings that run (the caller's, or their `fine()`).
+    """
+
+    images: object
+    targets: Targets
+    world_cams: Cameras
+    cams: Cameras
+    frame: SceneFrame
+    bounds: tuple[np.ndarray, np.ndarray]
+    pixel: float
+    hulls: HullTable
+    genus: int
+    estimate: GenusEstimate | None
+    thickness: float | None
+    fine: bool
+    options: ReconstructOptions
+
+
+def _estimated(hulls: HullTable, options: ReconstructOptions, say: Callable[[str], None]) -> GenusEstimate:
+    estimate = estimate_genus(hulls, options.hull_resolutions)
+    say(f"genus: estimated {estimate.genus} from the visual hull, {estimate.agreement:.0%} of the hulls agree "
+        f"({', '.join(str(e.genus) for e in estimate.evidence)} on grids {options.hull_resolutions} x closing 0, 1)"
+        + ("; low agreement: give the genus if you know it" if estimate.agreement < 0.5 else ""))
+    return estimate
+
+
+def _thin(tg: Targets, cams: Cameras, pixel: float, options: ReconstructOptions, say) -> tuple[float | None, bool]:
+    """The hull's thickness in image pixels, and whether it is under `fine_below` pixels of
+    the level the first cycles fit (a structure thin there needs fine() even when the
+    images themselves resolve it)."""
+    if options.fine_below <= 0:
+        return None, False
+    thickness = hull_thickness(tg.alpha, cams, options.hull_resolutions[0], pixel)
+    coarse = resolution_factors(cams.height, cams.width, 1, options.coarse_resolution, 0)[0]
+    if thickness / coarse >= options.fine_below:
+        return thickness, False
+    level = f" ({thickness:.2f} px of the images)" if coarse > 1 else ""
+    say(f"thin structure: the visual hull is {thickness / coarse:.2f} px thick at the fitted level{level} "
+        f"(< {options.fine_below}): fine() settings")
+    return thickness, True
+
+
+def prepare(images, cams: Cameras, genus: int | None, targets: str | None, options: ReconstructOptions,
+            say: Callable[[str], None]) -> Setup:
+    """The `Setup` of a run (see the module doc); `say(line)` reports each finding."""
+    tg = check_targets(images, cams, targets)
+    frame = scene_frame(tg.alpha, cams)
+    canonical = frame.cameras_to_canonical(cams)
+    say(f"frame: object centre {np.round(frame.centre, 6).tolist()}, radius {frame.scale:.6g} (user units); "
+        f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}")
+    lo, hi = visual_hull_bounds(tg.alpha, canonical)
+    pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
+    hulls = HullTable(tg.alpha, canonical)
+    estimate = _estimated(hulls, options, say) if genus is None else None
+    thickness, fine = _thin(tg, canonical, pixel, options, say)
+    return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
+                 pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
+                 estimate=estimate, thickness=thickness, fine=fine, options=options.fine() if fine else options)
