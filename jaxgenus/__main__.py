@@ -118,6 +118,8 @@ def _options(args):
         change["initial_faces"] = min(opts.initial_faces, args.max_faces)
     if args.edge_length:
         change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
+    if args.downsample is not None:
+        change["downsample"] = args.downsample
     if args.coarse_resolution is not None:
         change["coarse_resolution"] = args.coarse_resolution
     if args.crop is not None:
@@ -261,6 +263,9 @@ def main(argv=None) -> int:
     r.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "
                         "learning_rate=0.05 --option adaptive=True --option sigma=0.03 (repeatable; applied last)")
+    r.add_argument("--downsample", type=int, default=None, metavar="N",
+                   help="fit copies of the images downsampled N times (area average), cameras scaled to match: "
+                        "speed over detail (default 1)")
     r.add_argument("--coarse-resolution", type=int, default=None,
                    help="large images: early cycles fit copies downsampled to about this many pixels (default 128; 0: "
                         "full size throughout)")

@@ -28,3 +28,26 @@ def test_reconstruct_refuses_bad_genus_and_an_output_that_overwrites_an_input(tm
     assert main(args + ["--out", str(tmp_path / "r.obj"), "--refit-carve", "-1"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "refit_carve" in err
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "no_such_setting=1"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "no_such_setting" in err
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "learning_rate"]) == 1
+    assert "NAME=VALUE" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--downsample", "0"]) == 1
+    assert "downsample" in capsys.readouterr().err
+
+
+def test_cli_settings_map_onto_the_nested_options():
+    import argparse
+
+    from jaxgenus.__main__ import _options
+
+    base = dict(nicolet=False, fine=False, steps=150, one_jit=False, cycles=None, max_faces=20000, edge_length=None,
+                coarse_resolution=None, crop=64, lighting=None, hidden_handles=None, refits=None, refit_carve=None,
+                downsample=2, option=["learning_rate=0.05", "adaptive=True", "sigma=0.03", "lighting='directional'"])
+    opts = _options(argparse.Namespace(**base))
+    assert opts.optimize.learning_rate == 0.05 and opts.remesh.adaptive and opts.optimize.render.sigma == 0.03
+    assert opts.remesh.max_faces == 20000 and opts.optimize.crop == 64 and opts.downsample == 2
+    assert opts.lighting == "directional" and opts.optimize.adam_quantile == jg.OptimizeOptions().adam_quantile
+    nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
+    assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000

@@ -84,6 +84,17 @@ def _is_grey(rgb: np.ndarray) -> bool:
     return np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 1], rgb[..., 2])
 
 
+def _mask_like(px: np.ndarray, fmt: str) -> bool:
+    """An RGB(A) picture (raw integers) that is a mask saved in colour: its channels agree (exactly;
+    within 10 % in a JPEG, whose chroma is lossy) and almost every pixel is near black or white."""
+    rgb = px[..., :3].astype(np.float32) / float(np.iinfo(px.dtype).max if px.dtype.kind in "ui" else 1.0)
+    spread = float((rgb.max(-1) - rgb.min(-1)).max()) if rgb.size else 0.0
+    if spread > (0.1 if fmt == "JPEG" else 0.0):
+        return False
+    v = rgb[..., 0]
+    return bool(rgb.size) and float(np.mean((v < 0.1) | (v > 0.9))) >= 0.95
+
+
 def _luminance(rgb: np.ndarray) -> np.ndarray:
     """Rec. 601 luma of `(..., 3)`; exactly the channel value for greys."""
     if _is_grey(rgb):
@@ -104,6 +115,9 @@ def _read(path: str, what: str) -> _Picture:
                 px = np.asarray(im, dtype=bool)
             elif im.mode in ("L", "LA", "RGB", "RGBA") or im.mode.startswith("I;16"):
                 px = np.asarray(im)
+                opaque = im.mode == "RGB" or (im.mode == "RGBA" and px.size > 0 and px[..., 3].min() == 255)
+                if opaque and _mask_like(px, fmt):  # a 0/255 mask saved as RGB(A)
+                    px = px[..., :1]
             elif im.mode == "I":  # 16-bit PNGs in older Pillow; other 32-bit data must fit 16 bits
                 px = np.asarray(im)
                 if px.size and (px.min() < 0 or px.max() > 65535):
@@ -197,6 +211,8 @@ def _mask(pic: _Picture, what: str, check_grey: bool = True) -> np.ndarray:
     grey = float(np.mean((m > 0.1) & (m < 0.9)))
     if check_grey and grey > _GREY_FRACTION:
         raise ValueError(f"{what}: {pic.path} has {grey:.0%} grey pixels: a grayscale photo, not a mask; give {_HOW_TO_MASK}")
+    if pic.format == "JPEG":  # a lossy mask: its ringing edges are not coverage
+        m = m >= 0.5
     return np.ascontiguousarray(m, np.float32)
 
 
@@ -208,28 +224,45 @@ def _mask_keys(path: str) -> list[str]:
     return keys + ([root] if ext.lower() in IMAGE_EXTENSIONS and root else [])
 
 
-def _pair_masks(photos: list[str], masks: list[str]) -> tuple[list[int], list[str]]:
-    """For each photo the index of its mask (by file stem), and the names of the masks left over."""
+def _numbers(stems) -> dict[int, int]:
+    """`{number: index}` of the stems that are all digits, when no two of them are the same number."""
+    nums = [(int(s), i) for i, s in enumerate(stems) if s.isdigit()]
+    return dict(nums) if len({n for n, _ in nums}) == len(nums) else {}
+
+
+def _pair_masks(photos: list[str], masks: list[str]) -> tuple[list[int], list[str], bool]:
+    """For each photo the index of its mask (by file stem, or by number when the stems are numbers
+    of other widths: `000012.png` takes `012.png`), the names of the masks left over, and whether
+    any pair was made by number."""
     stems = {_stem(p): i for i, p in enumerate(photos)}
+    numbers = _numbers(list(stems))
     found: dict[int, list[int]] = {}
+    by_number = False
     for j, m in enumerate(masks):
-        key = next((k for k in _mask_keys(m) if k in stems), None)
+        keys = _mask_keys(m)
+        key = next((k for k in keys if k in stems), None)
         if key is not None:
             found.setdefault(stems[key], []).append(j)
+            continue
+        num = next((int(k) for k in keys if k.isdigit() and int(k) in numbers), None)
+        if num is not None:
+            found.setdefault(numbers[num], []).append(j)
+            by_number = True
     missing = [os.path.basename(photos[i]) for i in range(len(photos)) if i not in found]
     used = {j for js in found.values() for j in js}
     extra = [os.path.basename(m) for j, m in enumerate(masks) if j not in used]
     if missing:
         raise ValueError(
             f"masks: {len(missing)} of {len(photos)} photos have no mask ({few(missing)}); masks pair by file stem "
-            f"(photo a.jpg takes a.png, a_mask.png or a.jpg.png); {len(extra)} of {len(masks)} masks have no photo"
+            f"(photo a.jpg takes a.png, a_mask.png or a.jpg.png; 000012.jpg takes 012.png); {len(extra)} of "
+            f"{len(masks)} masks have no photo"
             + (f" ({few(extra)})" if extra else "")
         )
     for i, js in sorted(found.items()):
         if len(js) > 1:
             both = ", ".join(os.path.basename(masks[j]) for j in js)
             raise ValueError(f"masks: photo {os.path.basename(photos[i])} has several masks ({both})")
-    return [found[i][0] for i in range(len(photos))], extra
+    return [found[i][0] for i in range(len(photos))], extra, by_number
 
 
 def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int]) -> tuple[np.ndarray, str]:
@@ -242,10 +275,10 @@ def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int]) 
     files = _list_files(masks, "masks")
     if photos is None and len(files) != n:
         raise ValueError(f"masks: {len(files)} mask files for an array of {n} images (they pair by sorted order)")
-    index, extra = (list(range(n)), []) if photos is None else _pair_masks(photos, files)
+    index, extra, by_number = (list(range(n)), [], False) if photos is None else _pair_masks(photos, files)
     pics = [_read(files[j], "masks") for j in index]
     _check_size(pics, size, "its image", "masks")
-    how = "paired by order" if photos is None else "paired by name"
+    how = "paired by order" if photos is None else "paired by number" if by_number else "paired by name"
     note = f"; {len(extra)} masks without photos ignored ({few(extra, 3)})" if extra else ""
     return np.stack([_mask(p, "masks") for p in pics]), _describe(pics, f"mask files {how}{note}")
 

@@ -124,7 +124,8 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
         lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(), handles=start.handles,
         resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop}
                     for lv in levels],
-        ok=verdict.ok, warnings=verdict.warnings + _estimate_warnings(setup.estimate) + _handle_warnings(start.handles),
+        ok=verdict.ok, warnings=(verdict.warnings + _estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
+                                 + list(setup.notes)),
     )
 
 
@@ -146,7 +147,8 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)
     photos = np.asarray(setup.images, np.float32) if setup.targets.kind == "photo" else None
     verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
-                             None if app is None else (app.albedo, app.lighting), photos), options)
+                             None if app is None else (app.albedo, app.lighting), photos,
+                             carved_start=start.kind.startswith("visual_hull")), options)
     say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
         f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views"
         + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg"))

@@ -78,6 +78,9 @@ class ReconstructOptions:
         max_photo_error: photo targets: the verdict fails when the median over the views
             of the mean absolute RGB error (result rendered with its albedo and
             lighting, against the photos) is above this.
+        downsample: fit copies of the images area-averaged over `downsample x downsample`
+            blocks, with the cameras scaled to match (1: the images as they are): speed over
+            detail; the verdict then judges those copies.
         coarse_resolution, native_cycles: the resolution schedule for images of any
             size. When the images' longer side is at least 1.5 x `coarse_resolution`,
             all but the last `native_cycles` cycles fit copies area-averaged by a power
@@ -124,6 +127,7 @@ class ReconstructOptions:
     min_view_iou: float = 0.8
     outlier_gap: float = 0.15
     max_photo_error: float = 0.1
+    downsample: int = 1
     coarse_resolution: int = 128
     native_cycles: int = 1
     one_jit: bool = False
@@ -133,7 +137,7 @@ class ReconstructOptions:
     refit_carve: float = 1.0
 
     def __post_init__(self):
-        for name in ("n_cycles", "steps_per_cycle", "initial_faces"):
+        for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
             _positive_int(name, getattr(self, name))
         for name in ("coarse_resolution", "native_cycles"):
             _positive_int(name, getattr(self, name), 0)

@@ -29,7 +29,7 @@ from jaxgenus.geometry import Cameras
 from jaxgenus.pipeline._fit import FitIndex, fit
 from jaxgenus.pipeline._history import History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._setup import Setup, prepare
+from jaxgenus.pipeline._setup import Setup, downsampled, prepare
 from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._start_stage import first_start, refit_start
 
@@ -90,13 +90,19 @@ def reconstruct(
     say = log if log is not None else (lambda line: None)
     key = jax.random.key(0) if key is None else key
     _check_arguments(genus, options)
+    if options.downsample > 1:
+        h, w = cams.height, cams.width
+        images, cams = downsampled(images, cams, options.downsample, targets)
+        say(f"downsample: fitting {w}x{h} images as {cams.width}x{cams.height} copies (1/{options.downsample}), "
+            "cameras scaled to match")
     setup = prepare(images, cams, genus, targets, options, say)
     n_refits = options.refit_count(cams.height, cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
-                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0), key=key)
+                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, downsample=1),
+                           key=key)
 
     start = first_start(setup, fit_genus, say)
     say(_start_line(start, setup.genus, time.perf_counter() - t0))

@@ -15,15 +15,15 @@ from typing import Callable
 
 import numpy as np
 
-from jaxgenus.capture import SceneFrame, Targets, check_targets, hull_thickness, pixel_footprint, scene_frame
-from jaxgenus.capture import visual_hull_bounds
+from jaxgenus.capture import (SceneFrame, Targets, check_targets, cut_views, hull_thickness, pixel_footprint,
+                              scene_frame, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
-from jaxgenus.optim import resolution_factors
+from jaxgenus.optim import pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import HullTable, estimate_genus
 
-__all__ = ["Setup", "prepare"]
+__all__ = ["Setup", "downsampled", "prepare"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,6 +45,7 @@ class Setup:
             `fine_below` is 0).
         fine: the run switched to `options.fine()`.
         options: the settings that run (the caller's, or their `fine()`).
+        notes: what the run should warn of, found here (views cut by the frame).
     """
 
     images: object
@@ -60,6 +61,19 @@ class Setup:
     thickness: float | None
     fine: bool
     options: ReconstructOptions
+    notes: tuple[str, ...] = ()
+
+
+def _cut_note(alpha, say: Callable[[str], None]) -> tuple[str, ...]:
+    """A note when silhouettes touch their image's border: the object runs out of the frame there."""
+    cut = cut_views(alpha)
+    if not cut.any():
+        return ()
+    line = (f"{int(cut.sum())} of {len(cut)} masks touch the image border: the object runs out of the frame there, so "
+            "the visual hull keeps what those views do not show")
+    say(line)
+    many = cut.sum() > 0.25 * len(cut)
+    return (line + "; the genus estimate and the start are weaker",) if many else ()
 
 
 def _estimated(hulls: HullTable, options: ReconstructOptions, say: Callable[[str], None]) -> GenusEstimate:
@@ -86,6 +100,17 @@ def _thin(tg: Targets, cams: Cameras, pixel: float, options: ReconstructOptions,
     return thickness, True
 
 
+def downsampled(images, cams: Cameras, factor: int, targets: str | None = None) -> tuple[np.ndarray, Cameras]:
+    """`images` area-averaged over `factor x factor` blocks (as `reconstruct` takes them: silhouettes,
+    RGBA normal maps or straight RGBA photos) and the cameras of those copies."""
+    tg = check_targets(images, cams, targets)
+    level = pyramid_level(tg.fit, factor, normals=tg.kind == "normals")
+    if tg.kind == "photo":  # the fit is premultiplied: straight colours again
+        a = level[..., 3:]
+        level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
+    return np.ascontiguousarray(level, np.float32), scaled_cameras(cams, factor)
+
+
 def prepare(images, cams: Cameras, genus: int | None, targets: str | None, options: ReconstructOptions,
             say: Callable[[str], None]) -> Setup:
     """The `Setup` of a run (see the module doc); `say(line)` reports each finding."""
@@ -97,8 +122,10 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     lo, hi = visual_hull_bounds(tg.alpha, canonical)
     pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
     hulls = HullTable(tg.alpha, canonical)
+    notes = _cut_note(tg.alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
     thickness, fine = _thin(tg, canonical, pixel, options, say)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
-                 estimate=estimate, thickness=thickness, fine=fine, options=options.fine() if fine else options)
+                 estimate=estimate, thickness=thickness, fine=fine, options=options.fine() if fine else options,
+                 notes=notes)

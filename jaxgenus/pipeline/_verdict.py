@@ -14,7 +14,8 @@ A run is **not ok** (`ok = False`) when any of these holds, each with a warning:
 * a view disagrees with the rest: its IoU is `outlier_gap` below the median of
   the views (a mislabelled or miscalibrated view);
 * the result matches its silhouettes worse than the start did (mean IoU lower
-  by more than 0.01).
+  by more than 0.01; 0.03 when the start is the visual hull of the same
+  silhouettes, which fits them by construction: `START_TOLERANCE`).
 
 * photo targets: the median over the views of the photometric error (mean
   absolute RGB difference of the result's render, with its albedo and lighting,
@@ -97,6 +98,9 @@ class Evidence:
         genus_ok: the result has the requested genus.
         appearance: photo targets: `(albedo, lighting)` of the result, else None.
         photos: photo targets: the straight RGBA photos, else None.
+        carved_start: the start was carved from these very silhouettes (a visual hull), so it
+            matches them by construction, sharp corners and all: a smooth result may trail it
+            by a little and still fit (`START_TOLERANCE`).
     """
 
     result: Mesh
@@ -108,6 +112,13 @@ class Evidence:
     genus_ok: bool
     appearance: tuple | None = None
     photos: np.ndarray | None = None
+    carved_start: bool = False
+
+
+#: How far (mean silhouette IoU) a result may trail its start before the verdict fails: a
+#: start carved from the same silhouettes (a visual hull) fits them by construction, so a
+#: smooth fit trails it (16 torus masks at 96²: hull 0.994, a good fit 0.984).
+START_TOLERANCE = {"carved": 0.03, "other": 0.01}
 
 
 def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
@@ -136,7 +147,7 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
     if odd:
         fail.append(f"views {odd} disagree with the rest (IoU {', '.join(f'{iou[i]:.3f}' for i in odd)} against "
                     f"a median of {med:.3f}): mislabelled or miscalibrated?")
-    if np.mean(iou) < np.mean(start_iou) - 0.01:
+    if np.mean(iou) < np.mean(start_iou) - START_TOLERANCE["carved" if e.carved_start else "other"]:
         fail.append(f"the result matches its silhouettes worse than the start (mean IoU {np.mean(iou):.3f} < "
                     f"{np.mean(start_iou):.3f})")
     inverted = int(np.asarray(steps["inverted_faces"])[-1])
