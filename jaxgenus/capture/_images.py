@@ -86,13 +86,27 @@ def _is_grey(rgb: np.ndarray) -> bool:
 
 def _mask_like(px: np.ndarray, fmt: str) -> bool:
     """An RGB(A) picture (raw integers) that is a mask saved in colour: its channels agree (exactly;
-    within 10 % in a JPEG, whose chroma is lossy) and almost every pixel is near black or white."""
-    rgb = px[..., :3].astype(np.float32) / float(np.iinfo(px.dtype).max if px.dtype.kind in "ui" else 1.0)
-    spread = float((rgb.max(-1) - rgb.min(-1)).max()) if rgb.size else 0.0
-    if spread > (0.1 if fmt == "JPEG" else 0.0):
+    within 10 % in a JPEG, whose chroma is lossy) but on a few stray pixels (DTU's masks have a
+    handful of yellow ones), and almost every pixel is near black or white."""
+    if not px.size:
         return False
-    v = rgb[..., 0]
-    return bool(rgb.size) and float(np.mean((v < 0.1) | (v > 0.9))) >= 0.95
+    rgb = px[..., :3].astype(np.float32) / float(np.iinfo(px.dtype).max if px.dtype.kind in "ui" else 1.0)
+    spread = rgb.max(-1) - rgb.min(-1)
+    if float(np.mean(spread > (0.1 if fmt == "JPEG" else 0.0))) > 0.01:
+        return False
+    v = _luminance(rgb)
+    return float(np.mean((v < 0.1) | (v > 0.9))) >= 0.95
+
+
+def _grey_mask(px: np.ndarray) -> np.ndarray:
+    """`(H, W, 1)` of a mask saved as RGB(A): the grey value; a stray coloured pixel is black or
+    white by its luminance."""
+    rgb = px[..., :3]
+    top = np.iinfo(px.dtype).max
+    grey = rgb[..., 0].copy()
+    odd = (rgb.max(-1) != rgb.min(-1))
+    grey[odd] = np.where(_luminance(rgb[odd].astype(np.float32)) >= 0.5 * top, top, 0)
+    return grey[..., None]
 
 
 def _luminance(rgb: np.ndarray) -> np.ndarray:
@@ -117,7 +131,7 @@ def _read(path: str, what: str) -> _Picture:
                 px = np.asarray(im)
                 opaque = im.mode == "RGB" or (im.mode == "RGBA" and px.size > 0 and px[..., 3].min() == 255)
                 if opaque and _mask_like(px, fmt):  # a 0/255 mask saved as RGB(A)
-                    px = px[..., :1]
+                    px = _grey_mask(px)
             elif im.mode == "I":  # 16-bit PNGs in older Pillow; other 32-bit data must fit 16 bits
                 px = np.asarray(im)
                 if px.size and (px.min() < 0 or px.max() > 65535):

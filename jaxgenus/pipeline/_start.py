@@ -178,7 +178,7 @@ def _hull_start(hulls: HullTable, genus: int, target: float, options: Reconstruc
     """The visual hull as a start mesh, with the requested genus.
 
     Tries the grid sizes `options.hull_resolutions` with a grey-level closing of
-    0, 1, 2 cells (closing fills the spurious thin tunnels carving leaves; it stops
+    0 to 3 cells (closing fills the spurious thin tunnels carving leaves; it stops
     once no grid reaches the genus: closing only removes handles). When no hull
     has the genus but one has fewer handles, the missing ones are drilled as thin
     small tunnels (`drill_tunnels`, size `target`) into the one with the most.
@@ -190,7 +190,7 @@ def _hull_start(hulls: HullTable, genus: int, target: float, options: Reconstruc
         return remeshed_start(hull, genus, target, options)
 
     below = []  # (genus, order, hull, grid) of hulls with fewer handles than requested
-    for closing in (0, 1, 2):
+    for closing in (0, 1, 2, 3):
         highest = -1
         for res in options.hull_resolutions:
             hull, g = hulls.get(res, closing)
