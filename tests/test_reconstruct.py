@@ -169,13 +169,13 @@ def test_a_refit_that_fits_worse_is_dropped(torus_scene, monkeypatch):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=60, initial_faces=800, max_faces=3000)
     first = jg.reconstruct(img, cams, 1, options=opts)
-    refit_start = R._refit_start
+    refit_start = R.refit_start
 
-    def shrunken(prior, *args):
-        start = refit_start(prior, *args)
-        return start._replace(mesh=eqx.tree_at(lambda m: m.vertices, start.mesh, start.mesh.vertices * 0.3))
+    def shrunken(*args):
+        start = refit_start(*args)
+        return dataclasses.replace(start, mesh=eqx.tree_at(lambda m: m.vertices, start.mesh, start.mesh.vertices * 0.3))
 
-    monkeypatch.setattr(R, "_refit_start", shrunken)
+    monkeypatch.setattr(R, "refit_start", shrunken)
     for carve in (0.0, 1.0):  # a carving refit (the default for normal maps) is retried once without carving
         lines, refit_seconds = [], []
         rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=2, refit_carve=carve),
