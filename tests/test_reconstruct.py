@@ -246,7 +246,7 @@ def test_same_key_same_result(torus_scene):
 def test_nicolet_baseline_keeps_the_sphere_connectivity(torus_scene):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions.nicolet(n_cycles=2, steps_per_cycle=10, initial_faces=600)
-    assert opts.adam_quantile == 1.0  # Nicolet's uniform Adam: the max, not our robust quantile
+    assert opts.optimize.adam_quantile == 1.0  # Nicolet's uniform Adam: the max, not our robust quantile
     rec = jg.reconstruct(img, cams, 1, options=opts)
     assert rec.genus == 0 and rec.genus_ok  # the baseline cannot change topology
     assert all("remesh_status" not in c for c in rec.history["cycles"])
@@ -270,9 +270,9 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
 def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
     ours, base = jg.ReconstructOptions().fine(), jg.ReconstructOptions.nicolet().fine()
     for o in (ours, base):
-        assert (o.sigma, o.lr_decay, o.n_cycles, o.average) == (0.03, 0.9, 5, 0.95)
-    assert ours.remesh and ours.start == "auto" and ours.max_faces == 20000 and ours.adam_quantile == 0.99
-    assert not base.remesh and base.start == "sphere" and base.adam_quantile == 1.0  # still the baseline
+        assert (o.render.sigma, o.lr_decay, o.n_cycles, o.optimize.average) == (0.03, 0.9, 5, 0.95)
+    assert ours.remesh and ours.start == "auto" and ours.face_budget == 20000 and ours.optimize.adam_quantile == 0.99
+    assert not base.remesh and base.start == "sphere" and base.optimize.adam_quantile == 1.0  # still the baseline
     assert ours.edge_lengths()[0] == 1.4 and ours.edge_lengths()[-1] == pytest.approx(1.0)
 
 
