@@ -55,7 +55,11 @@ def _progress(say):
     def show(row, mesh):
         seconds.append(row["seconds"])
         done, total = len(seconds), row["fits"] * row["n_cycles"]  # the fits share their cycle count
-        eta = sum(seconds) / done * max(total - done, 0)
+        if row["eta"] is None:  # one jit: no cost model
+            eta = sum(seconds) / done * max(total - done, 0)
+        else:  # this fit's estimate (later levels by their pixels, the verdict); a refit costs as much
+            this_fit = sum(seconds[done - row["cycle"] - 1:]) + row["eta"]
+            eta = row["eta"] + (row["fits"] - row["fit"] - 1) * this_fit
         bar = "#" * done + "." * max(total - done, 0)
         fit = f"fit {row['fit'] + 1}/{row['fits']} " if row["fits"] > 1 else ""
         say(f"[{bar}] {fit}cycle {row['cycle'] + 1}/{row['n_cycles']}  loss {row['loss']:.4f}  faces {row['faces']}"
@@ -120,6 +124,8 @@ def _options(args):
         change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
     if args.downsample is not None:
         change["downsample"] = args.downsample
+    if getattr(args, "devices", None) is not None:
+        change["devices"] = args.devices
     if args.coarse_resolution is not None:
         change["coarse_resolution"] = args.coarse_resolution
     if args.crop is not None:
@@ -177,9 +183,30 @@ def _check_outputs(args):
                 raise _InputError(f"--out {args.out}: writing {target} would overwrite the input {src}")
 
 
+def _join(args) -> None:
+    """`jax.distributed.initialize` from `--coordinator/--num-processes/--process-id`, or from the
+    environment (`JAX_COORDINATOR_ADDRESS`, SLURM, ...) when `--coordinator` is `env`; CPU devices
+    talk over gloo. Nothing when no flag asks for it."""
+    if not args.coordinator:
+        return
+    import jax
+
+    if args.coordinator != "env" and (args.num_processes is None or args.process_id is None):
+        raise _InputError("--coordinator HOST:PORT needs --num-processes N and --process-id I")
+    jax.config.update("jax_cpu_collectives_implementation", "gloo")
+    if args.coordinator == "env":
+        jax.distributed.initialize()
+    else:
+        jax.distributed.initialize(coordinator_address=args.coordinator, num_processes=args.num_processes,
+                                   process_id=args.process_id)
+
+
 def _reconstruct(args) -> int:
+    import jax
+
     import jaxgenus as jg
 
+    _join(args)
     _check_outputs(args)
     say = _clock(time.perf_counter())
     opts = _options(args)
@@ -201,8 +228,16 @@ def _reconstruct(args) -> int:
         f"{opts.steps_per_cycle} steps, up to {opts.face_budget} faces")
     rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say)
     _report(rec, gt)
-    _write(rec, args.out)
+    if jax.process_index() == 0:  # one mesh: the first process writes it
+        _write(rec, args.out)
     return _exit_code(rec)
+
+
+def _batch(args) -> int:
+    from jaxgenus._batch import run_batch
+
+    return run_batch(Path(args.captures), Path(args.out), list(args.rest), main,
+                     num_processes=args.num_processes, process_id=args.process_id)
 
 
 def _demo(args) -> int:
@@ -221,6 +256,25 @@ def _demo(args) -> int:
     _report(rec, gt)
     _write(rec, Path(args.out) / f"{args.scene}.obj")
     return _exit_code(rec)
+
+
+def _add_batch_and_demo(sub) -> None:
+    b = sub.add_parser("batch", help="reconstruct every capture of a folder (images/, masks/, a camera file each)",
+                       epilog="options after CAPTURES are those of `jaxgenus reconstruct` (--genus, --option, ...)")
+    b.add_argument("captures", help="a folder of capture subfolders")
+    b.add_argument("--out", required=True, help="output folder: OUT/NAME/mesh.obj, OUT/summary.md")
+    b.add_argument("--num-processes", type=int, default=1, metavar="N", help="N processes share the captures")
+    b.add_argument("--process-id", type=int, default=0, metavar="I", help="this process takes every N-th from I")
+    b.set_defaults(run=_batch)
+    d = sub.add_parser("demo", help="reconstruct a built-in scene and print chamfer, IoU and genus")
+    d.add_argument("--scene", default="three_tori", choices=["torus", "tilted_tori", "three_tori"])
+    d.add_argument("--views", type=int, default=16)
+    d.add_argument("--res", type=int, default=64)
+    d.add_argument("--cycles", type=int, default=4)
+    d.add_argument("--steps", type=int, default=150)
+    d.add_argument("--one-jit", action="store_true", help="all cycles in one compiled scan (ReconstructOptions.one_jit)")
+    d.add_argument("--out", default="jaxgenus_out")
+    d.set_defaults(run=_demo)
 
 
 def main(argv=None) -> int:
@@ -263,6 +317,13 @@ def main(argv=None) -> int:
     r.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "
                         "learning_rate=0.05 --option adaptive=True --option sigma=0.03 (repeatable; applied last)")
+    r.add_argument("--devices", type=int, default=None, metavar="N",
+                   help="split the views over the first N devices (default: all of them; 1: one)")
+    r.add_argument("--coordinator", default=None, metavar="HOST:PORT",
+                   help="join other processes with jax.distributed (with --num-processes, --process-id; 'env': "
+                        "from the environment); the views are split over every process's devices, process 0 writes")
+    r.add_argument("--num-processes", type=int, default=None, metavar="N")
+    r.add_argument("--process-id", type=int, default=None, metavar="I")
     r.add_argument("--downsample", type=int, default=None, metavar="N",
                    help="fit copies of the images downsampled N times (area average), cameras scaled to match: "
                         "speed over detail (default 1)")
@@ -283,16 +344,11 @@ def main(argv=None) -> int:
     r.add_argument("--one-jit", action="store_true", help="all cycles in one compiled scan (ReconstructOptions.one_jit)")
     r.add_argument("--out", default="jaxgenus_out/reconstruction.obj")
     r.set_defaults(run=_reconstruct)
-    d = sub.add_parser("demo", help="reconstruct a built-in scene and print chamfer, IoU and genus")
-    d.add_argument("--scene", default="three_tori", choices=["torus", "tilted_tori", "three_tori"])
-    d.add_argument("--views", type=int, default=16)
-    d.add_argument("--res", type=int, default=64)
-    d.add_argument("--cycles", type=int, default=4)
-    d.add_argument("--steps", type=int, default=150)
-    d.add_argument("--one-jit", action="store_true", help="all cycles in one compiled scan (ReconstructOptions.one_jit)")
-    d.add_argument("--out", default="jaxgenus_out")
-    d.set_defaults(run=_demo)
-    args = parser.parse_args(argv)
+    _add_batch_and_demo(sub)
+    args, rest = parser.parse_known_args(argv)
+    if rest and args.command != "batch":
+        parser.error(f"unrecognized arguments: {' '.join(rest)}")
+    args.rest = rest
     if args.command == "reconstruct" and args.genus != "auto" and not str(args.genus).isdigit():
         parser.error(f"--genus must be an int >= 0 or 'auto', got {args.genus!r}")
     try:

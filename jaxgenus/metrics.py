@@ -12,6 +12,8 @@ from jaxgenus.geometry import (
     hausdorff_distance,
     icp_align,
     normalize_to_unit_sphere,
+    reprojection_psnr,
+    Reprojection,
     volume_iou,
 )
 
@@ -27,6 +29,8 @@ __all__ = [
     "hausdorff_distance",
     "icp_align",
     "normalize_to_unit_sphere",
+    "Reprojection",
+    "reprojection_psnr",
     "volume_iou",
     "voxelize",
 ]

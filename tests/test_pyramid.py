@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import jax
 import jax.numpy as jnp
@@ -12,11 +14,30 @@ from jaxgenus.optim import _pyramid
 
 
 def test_resolution_factors():
+    """Coarse copies first, each level twice the last (down to 1/2), the images' own size last."""
     assert _pyramid.resolution_factors(128, 128, 4, 128, 1) == [1, 1, 1, 1]
-    assert _pyramid.resolution_factors(512, 512, 4, 128, 1) == [4, 4, 4, 1]
-    assert _pyramid.resolution_factors(1024, 1024, 5, 128, 2) == [8, 8, 8, 1, 1]
-    assert _pyramid.resolution_factors(480, 640, 4, 128, 1) == [4, 4, 4, 1]  # 160 x 120 early
+    assert _pyramid.resolution_factors(512, 512, 4, 128, 1) == [4, 2, 2, 1]
+    assert _pyramid.resolution_factors(256, 256, 4, 128, 1) == [2, 2, 2, 1]  # as before this schedule
+    assert _pyramid.resolution_factors(1024, 1024, 5, 128, 2) == [8, 4, 2, 1, 1]
+    assert _pyramid.resolution_factors(480, 640, 4, 128, 1) == [4, 2, 2, 1]  # 160 x 120 first
+    assert _pyramid.resolution_factors(1200, 1600, 4, 128, 1) == [16, 8, 4, 1]  # DTU: 100x75, 200x150, 400x300
+    assert _pyramid.resolution_factors(1200, 1600, 6, 128, 1) == [16, 8, 4, 2, 2, 1]
     assert _pyramid.resolution_factors(512, 512, 4, 0, 1) == [1, 1, 1, 1]  # off
+
+
+def test_step_views_keep_a_step_within_its_pixels():
+    opts = jg.OptimizeOptions()  # 4 views, 2^21 pixels
+    assert jg.optim.step_views(24, 512, 512, opts) == (4, 0)  # 4 x 512^2 fit
+    assert jg.optim.step_views(2, 64, 64, opts) == (2, 0)  # fewer views than asked
+    assert jg.optim.step_views(41, 1200, 1600, opts) == (1, 1448)  # one view holds more: one 1448^2 window
+    assert jg.optim.step_views(41, 600, 800, opts) == (4, 0)
+    assert jg.optim.step_views(41, 1000, 1000, opts) == (2, 0)  # 2 whole views
+    assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, max_pixels=None)) == (4, 0)
+    assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, crop=256)) == (4, 256)  # asked for
+    assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, views_per_step=None)) == (1, 1448)
+    assert jg.optim.step_views(41, 100, 100, dataclasses.replace(opts, views_per_step=None)) == (41, 0)
+    with pytest.raises(ValueError, match="max_pixels"):
+        jg.OptimizeOptions(max_pixels=0)
 
 
 def test_pyramid_level_averages_blocks_and_premultiplies_normals():
@@ -79,6 +100,7 @@ def test_reconstruct_takes_large_images_through_the_schedule():
     rec = jg.reconstruct(targets, cams, 1, options=opts)
     res = rec.history["resolution"]
     assert [r["factor"] for r in res] == [2, 2, 1]
-    assert res[0]["size"] == [128, 128] and res[-1] == {"factor": 1, "size": [256, 256], "crop": 64}
+    assert res[0]["size"] == [128, 128]
+    assert res[-1] == {"factor": 1, "size": [256, 256], "crop": 64, "views": 4, "window": 64, "pixels": 4 * 64 * 64}
     assert rec.genus == 1
     assert min(rec.history["silhouette_iou"]) > 0.9

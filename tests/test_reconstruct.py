@@ -314,7 +314,7 @@ def test_thin_switch_measures_the_level_the_first_cycles_fit():
     rec = jg.reconstruct(img, cams, 1, options=opts, log=lines.append)
     h = rec.history
     assert h["fine"] and h["hull_thickness"] > opts.fine_below  # thin at the 64² level, not in native pixels
-    assert [r["factor"] for r in h["resolution"]][:-1] == [4] * 4
+    assert [r["factor"] for r in h["resolution"]] == [4, 2, 2, 2, 1]  # fine(): 5 cycles
     # normal maps fitted through the schedule get two refits by default (refits=None), each one fine() again
     assert rec.options.refits is None
     assert any(line.startswith("refits: 2 more fits from this result (normal maps of 256x256") for line in lines)

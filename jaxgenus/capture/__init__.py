@@ -5,7 +5,7 @@ frame. Depends on `geometry` only.
 
 from jaxgenus.capture._camera_files import load_cameras
 from jaxgenus.capture._frame import SceneFrame, pixel_footprint, scene_frame
-from jaxgenus.capture._hull import cut_views, hull_thickness, largest_component, visual_hull, visual_hull_bounds
+from jaxgenus.capture._hull import HullOccupancy, cut_views, hull_occupancy, hull_thickness, largest_component, visual_hull, visual_hull_bounds
 from jaxgenus.capture._images import LoadedImages, load_images
 from jaxgenus.capture._pairing import pair_images
 from jaxgenus.capture._targets import Targets, check_targets
@@ -16,6 +16,8 @@ __all__ = [
     "Targets",
     "check_targets",
     "cut_views",
+    "HullOccupancy",
+    "hull_occupancy",
     "hull_thickness",
     "largest_component",
     "load_cameras",

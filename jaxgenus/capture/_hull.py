@@ -6,6 +6,7 @@ Host-side numpy and manifold3d (outside `jit`).
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from jaxgenus.geometry import Mesh
 from jaxgenus.capture._targets import check_targets
 from jaxgenus.geometry import connected_components
 
-__all__ = ["carved_points", "cut_views", "hull_thickness", "largest_component", "visual_hull", "visual_hull_bounds"]
+__all__ = ["HullOccupancy", "carved_points", "cut_views", "hull_occupancy", "hull_thickness", "largest_component", "visual_hull", "visual_hull_bounds"]
 
 
 def visual_hull_bounds(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, np.ndarray]:
@@ -33,13 +34,20 @@ def cut_views(alpha) -> np.ndarray:
     return a[:, 0, :].any(1) | a[:, -1, :].any(1) | a[:, :, 0].any(1) | a[:, :, -1].any(1)
 
 
-def _pixels(cams: Cameras, i: int, points: np.ndarray):
-    """Continuous pixel coordinates `(u, v)` of `points` in view `i` and whether they lie in front of it."""
-    rot = np.asarray(cams.rotation[i], np.float64)
-    xc = points @ rot.T + np.asarray(cams.translation[i], np.float64)
+def _camera_numpy(cams: Cameras) -> tuple[np.ndarray, ...]:
+    """`(rotation, translation, focal, principal_point)` as float64 numpy, read once per pass over the views
+    (indexing the cameras' jax arrays view by view costs more than the projection)."""
+    return tuple(np.asarray(a, np.float64) for a in (cams.rotation, cams.translation, cams.focal,
+                                                     cams.principal_point))
+
+
+def _pixels(cams: tuple[np.ndarray, ...], i: int, points: np.ndarray):
+    """Continuous pixel coordinates `(u, v)` of `points` in view `i` (cameras as `_camera_numpy`) and
+    whether they lie in front of it."""
+    rot, trans, focal, pp = (a[i] for a in cams)
+    xc = points @ rot.T + trans
     front = xc[:, 2] > 1e-9
     z = np.where(front, xc[:, 2], 1.0)
-    focal, pp = np.asarray(cams.focal[i], np.float64), np.asarray(cams.principal_point[i], np.float64)
     return xc[:, 0] / z * focal[0] + pp[0], xc[:, 1] / z * focal[1] + pp[1], front
 
 
@@ -70,8 +78,9 @@ def _carved(alpha: np.ndarray, cams: Cameras, grid: np.ndarray, cut: np.ndarray)
     inside = np.ones(len(grid), bool)
     seen = np.zeros(len(grid), np.int32)
     h, w = cams.height, cams.width
+    arrays = _camera_numpy(cams)
     for i in range(len(cams)):
-        u, v, front = _pixels(cams, i, grid)
+        u, v, front = _pixels(arrays, i, grid)
         u, v = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
         ok = front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         hit = np.zeros(len(grid), bool)
@@ -127,8 +136,9 @@ def _hull_occupancy(alpha: np.ndarray, cams: Cameras, points: np.ndarray) -> np.
     cut = cut_views(alpha)
     occ = np.ones(len(points))
     seen = np.zeros(len(points), np.int32)
+    arrays = _camera_numpy(cams)
     for i in range(len(cams)):
-        u, v, front = _pixels(cams, i, points)
+        u, v, front = _pixels(arrays, i, points)
         u, v = u - 0.5, v - 0.5  # pixel centres sit at +0.5: continuous coordinates of the sample grid
         ok = front & (u > -1) & (u < w) & (v > -1) & (v < h)
         u, v = np.clip(u, -1, w), np.clip(v, -1, h)
@@ -148,32 +158,57 @@ def _hull_occupancy(alpha: np.ndarray, cams: Cameras, points: np.ndarray) -> np.
     return np.where(seen >= _enough(len(cams)), occ, np.minimum(occ, 0.0))
 
 
-def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0):
-    """Watertight `Mesh` of the visual hull of the silhouettes in `images`.
+class HullOccupancy(NamedTuple):
+    """The visual hull's soft occupancy on a grid (`hull_occupancy`).
 
-    `images` as in `reconstruct` (`(N, H, W, 4)` RGBA or `(N, H, W)` alpha). The soft
-    occupancy (minimum over views of the bilinearly sampled silhouette) is
-    sampled on a grid of `resolution` cells along the longest side of
-    `visual_hull_bounds`; `closing > 0` applies a grey-level morphological closing
-    with a ball of that many cells (fills thin spurious tunnels left by carving,
-    and real holes that thin). Its 0.5 level set is extracted with manifold3d's
-    marching tetrahedra, so the mesh is a closed manifold; it may have several
-    components, and holes thinner than about a grid cell close up. Host-side.
+    Attributes:
+        values: `(nx, ny, nz)` occupancy in [0, 1] at the grid points.
+        lo: `(3,)` the first grid point; cell: the grid step; hi: `(3,)` the upper corner of
+            the box the surface is extracted in.
     """
-    import manifold3d
 
+    values: np.ndarray
+    lo: np.ndarray
+    cell: float
+    hi: np.ndarray
+
+
+def hull_occupancy(images, cams: Cameras, *, resolution: int = 64, bounds=None) -> HullOccupancy:
+    """The soft occupancy of the silhouettes' visual hull (minimum over views of the bilinearly
+    sampled silhouette) on a grid of `resolution` cells along the longest side of `bounds`
+    (default `visual_hull_bounds`; pass them to reuse them), two cells of margin. Host-side."""
     alpha = check_targets(images, cams).alpha
     if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
         raise ValueError(f"resolution must be an int >= 8, got {resolution!r}")
-    if isinstance(closing, bool) or not isinstance(closing, int) or closing < 0:
-        raise ValueError(f"closing must be an int >= 0, got {closing!r}")
-    lo, hi = visual_hull_bounds(alpha, cams)
+    lo, hi = visual_hull_bounds(alpha, cams) if bounds is None else (np.asarray(b, np.float64) for b in bounds)
     cell = float((hi - lo).max()) / resolution
     lo, hi = lo - 2 * cell, hi + 2 * cell
     shape = np.ceil((hi - lo) / cell).astype(int) + 1
     axes = [lo[d] + cell * np.arange(shape[d]) for d in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    occ = _hull_occupancy(alpha, cams, grid).reshape(shape)
+    return HullOccupancy(_hull_occupancy(alpha, cams, grid).reshape(shape), lo, cell, hi)
+
+
+def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0, bounds=None,
+                occupancy: HullOccupancy | None = None):
+    """Watertight `Mesh` of the visual hull of the silhouettes in `images`.
+
+    `images` as in `reconstruct` (`(N, H, W, 4)` RGBA or `(N, H, W)` alpha). The soft
+    occupancy (`hull_occupancy` at `resolution` within `bounds`, or the `occupancy` given,
+    which then replaces both) is closed by `closing > 0` cells (a grey-level morphological
+    closing with a ball: fills thin spurious tunnels left by carving, and real holes that
+    thin). Its 0.5 level set is extracted with manifold3d's marching tetrahedra, so the mesh
+    is a closed manifold; it may have several components, and holes thinner than about a
+    grid cell close up. Host-side.
+    """
+    import manifold3d
+
+    if isinstance(closing, bool) or not isinstance(closing, int) or closing < 0:
+        raise ValueError(f"closing must be an int >= 0, got {closing!r}")
+    if occupancy is None:
+        occupancy = hull_occupancy(images, cams, resolution=resolution, bounds=bounds)
+    occ, lo, cell = np.array(occupancy.values, np.float64), np.asarray(occupancy.lo, np.float64), occupancy.cell
+    shape, hi = occ.shape, np.asarray(occupancy.hi, np.float64)
     if closing:
         from scipy import ndimage
 
@@ -220,15 +255,18 @@ def largest_component(mesh: Mesh) -> Mesh:
     return Mesh.from_numpy(v[used], f.reshape(-1, 3))
 
 
-def hull_thickness(alpha, cams: Cameras, resolution: int, pixel: float) -> float:
+def hull_thickness(alpha, cams: Cameras, resolution: int, pixel: float, *, hull: Mesh | None = None) -> float:
     """`2 * volume / area` of the largest piece of the visual hull, in units of `pixel` (inf if none).
 
-    A slab's thickness, a tube's radius: how thin the object looks to the cameras.
+    A slab's thickness, a tube's radius: how thin the object looks to the cameras. `hull`: that
+    largest piece, when it was built already (then `alpha`, `cams` and `resolution` are not read).
     """
-    try:
-        v, f = largest_component(visual_hull(alpha, cams, resolution=resolution)).to_numpy()
-    except ValueError:
-        return math.inf
+    if hull is None:
+        try:
+            hull = largest_component(visual_hull(alpha, cams, resolution=resolution))
+        except ValueError:
+            return math.inf
+    v, f = hull.to_numpy()
     v = v.astype(np.float64)
     a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
     area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()

@@ -16,6 +16,8 @@ from typing import NamedTuple, Sequence
 import numpy as np
 from jaxtyping import Float
 
+from jaxgenus.capture._mask_pixels import grey_mask, is_grey, luminance, mask_like
+
 __all__ = ["BACKGROUND_THRESHOLD", "IMAGE_EXTENSIONS", "LoadedImages", "few", "infer_targets", "load_images"]
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
@@ -69,7 +71,7 @@ def _stem(path: str) -> str:
 def _scale(arr: np.ndarray, what: str) -> np.ndarray:
     """uint8 / 255, uint16 / 65535, bool -> {0, 1}, float kept (checked in [0, 1]); always a new float32 array."""
     if arr.dtype in (np.uint8, np.uint16):
-        return (arr / (255.0 if arr.dtype == np.uint8 else 65535.0)).astype(np.float32)
+        return arr.astype(np.float32) / np.float32(255.0 if arr.dtype == np.uint8 else 65535.0)
     if arr.dtype == np.bool_:
         return arr.astype(np.float32)
     if np.issubdtype(arr.dtype, np.floating):
@@ -78,42 +80,6 @@ def _scale(arr: np.ndarray, what: str) -> np.ndarray:
             raise ValueError(f"{what}: float values must lie in [0, 1], got [{np.nanmin(out):.4g}, {np.nanmax(out):.4g}]")
         return out
     raise ValueError(f"{what}: dtype {arr.dtype} is not supported (use uint8, uint16, bool or float in [0, 1])")
-
-
-def _is_grey(rgb: np.ndarray) -> bool:
-    return np.array_equal(rgb[..., 0], rgb[..., 1]) and np.array_equal(rgb[..., 1], rgb[..., 2])
-
-
-def _mask_like(px: np.ndarray, fmt: str) -> bool:
-    """An RGB(A) picture (raw integers) that is a mask saved in colour: its channels agree (exactly;
-    within 10 % in a JPEG, whose chroma is lossy) but on a few stray pixels (DTU's masks have a
-    handful of yellow ones), and almost every pixel is near black or white."""
-    if not px.size:
-        return False
-    rgb = px[..., :3].astype(np.float32) / float(np.iinfo(px.dtype).max if px.dtype.kind in "ui" else 1.0)
-    spread = rgb.max(-1) - rgb.min(-1)
-    if float(np.mean(spread > (0.1 if fmt == "JPEG" else 0.0))) > 0.01:
-        return False
-    v = _luminance(rgb)
-    return float(np.mean((v < 0.1) | (v > 0.9))) >= 0.95
-
-
-def _grey_mask(px: np.ndarray) -> np.ndarray:
-    """`(H, W, 1)` of a mask saved as RGB(A): the grey value; a stray coloured pixel is black or
-    white by its luminance."""
-    rgb = px[..., :3]
-    top = np.iinfo(px.dtype).max
-    grey = rgb[..., 0].copy()
-    odd = (rgb.max(-1) != rgb.min(-1))
-    grey[odd] = np.where(_luminance(rgb[odd].astype(np.float32)) >= 0.5 * top, top, 0)
-    return grey[..., None]
-
-
-def _luminance(rgb: np.ndarray) -> np.ndarray:
-    """Rec. 601 luma of `(..., 3)`; exactly the channel value for greys."""
-    if _is_grey(rgb):
-        return rgb[..., 0].astype(np.float32)
-    return (rgb.astype(np.float64) @ np.array([0.299, 0.587, 0.114])).astype(np.float32)
 
 
 def _read(path: str, what: str) -> _Picture:
@@ -130,8 +96,8 @@ def _read(path: str, what: str) -> _Picture:
             elif im.mode in ("L", "LA", "RGB", "RGBA") or im.mode.startswith("I;16"):
                 px = np.asarray(im)
                 opaque = im.mode == "RGB" or (im.mode == "RGBA" and px.size > 0 and px[..., 3].min() == 255)
-                if opaque and _mask_like(px, fmt):  # a 0/255 mask saved as RGB(A)
-                    px = _grey_mask(px)
+                if opaque and mask_like(px, fmt):  # a 0/255 mask saved as RGB(A)
+                    px = grey_mask(px)
             elif im.mode == "I":  # 16-bit PNGs in older Pillow; other 32-bit data must fit 16 bits
                 px = np.asarray(im)
                 if px.size and (px.min() < 0 or px.max() > 65535):
@@ -141,7 +107,7 @@ def _read(path: str, what: str) -> _Picture:
                 px = np.asarray(im, dtype=np.float32)
             elif im.mode == "P" and "transparency" not in im.info:
                 px = np.asarray(im.convert("RGB"))
-                px, label = (px[..., :1], False) if _is_grey(px) else (px, True)
+                px, label = (px[..., :1], False) if is_grey(px) else (px, True)
             else:  # P with transparency, PA, CMYK, YCbCr, LAB, RGBX, RGBa, La, ...
                 px = np.asarray(im.convert("RGBA" if im.mode.endswith(("A", "a")) or im.mode == "P" else "RGB"))
     except (OSError, UnidentifiedImageError, SyntaxError) as err:
@@ -212,9 +178,9 @@ def _mask(pic: _Picture, what: str, check_grey: bool = True) -> np.ndarray:
     if pic.label:
         m = (px.max(-1) > 0).astype(np.float32)
     elif c in (1, 3):
-        m = px[..., 0] if c == 1 else _luminance(px)
+        m = px[..., 0] if c == 1 else luminance(px)
     else:
-        lum, alpha = (px[..., 0] if c == 2 else _luminance(px[..., :3])), px[..., -1]
+        lum, alpha = (px[..., 0] if c == 2 else luminance(px[..., :3])), px[..., -1]
         inside = alpha > 0
         if alpha.min() >= 1.0:
             m = lum

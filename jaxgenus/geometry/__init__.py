@@ -30,6 +30,7 @@ from jaxgenus.geometry._metrics import (
 )
 from jaxgenus.geometry._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus.geometry._primitives import genus_primitive
+from jaxgenus.geometry._reprojection import Reprojection, reprojection_psnr
 from jaxgenus.geometry._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus.geometry._topology import (
     MeshReport,
@@ -63,6 +64,8 @@ __all__ = [
     "cameras_to_opengl",
     "capacity_bucket",
     "chamfer_distance",
+    "Reprojection",
+    "reprojection_psnr",
     "component_genera",
     "connected_components",
     "euler_characteristic",

@@ -24,7 +24,8 @@ from jaxgenus.optim._optimize import (
     StepRecord,
     optimize_steps,
 )
-from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras
+from jaxgenus.optim._devices import device_mesh, place, spread_views
+from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras, step_views
 
 __all__ = [
     "Appearance",
@@ -47,6 +48,10 @@ __all__ = [
     "objective",
     "optimize_block",
     "optimize_steps",
+    "step_views",
+    "device_mesh",
+    "place",
+    "spread_views",
     "outside_distance",
     "pyramid_level",
     "render_channels",

@@ -35,7 +35,8 @@ from jaxgenus.optim._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_diff
 from jaxgenus.optim._loss import LossWeights, objective, render_channels
 from jaxgenus.geometry import Mesh
 from jaxgenus.geometry import uniform_laplacian
-from jaxgenus.optim._pyramid import crop_views, target_boxes
+from jaxgenus.optim._devices import AXIS, views_gradient
+from jaxgenus.optim._pyramid import crop_views, step_views, target_boxes
 from jaxgenus.rendering import LIGHTING_SHAPE, RenderSettings, lighting_model
 
 __all__ = [
@@ -103,6 +104,15 @@ class OptimizeOptions:
             the target's silhouette box (`jaxgenus.optim.crop_views`), instead of
             the whole image; 0 (default) renders whole views. The cost of a step then
             follows the crop, not the image size.
+        device_mesh: a 1-D device mesh (axis `"views"`, `jaxgenus.optim.device_mesh`) the views are
+            split over, or None (one device). With a mesh, the cameras, targets and `valid` given to
+            `optimize_steps` are laid out by `spread_views` and split over it; each device renders
+            `ceil(views / devices)` of its own views a step (`jaxgenus.optim._devices`).
+        max_pixels: the most pixels one step renders (None: no bound). When the sampled
+            views hold more, a step samples fewer views (one at least), and when one view
+            holds more, a random `s x s` window of it with `s^2 <= max_pixels`
+            (`step_views`): the cost and memory of a step are bounded whatever the image
+            size. The default, 2^21, is 8 views of 512^2.
         renderer: `renderer(mesh, cameras, channels=..., **render.kwargs())`;
             `None` is `jaxgenus.render`.
         render: `RenderSettings` passed to the renderer (`None`: none are passed,
@@ -121,6 +131,8 @@ class OptimizeOptions:
     cg_max_iter: int = 2000
     average: float = 0.0
     crop: int = 0
+    max_pixels: int | None = 1 << 21
+    device_mesh: object = None
     albedo_learning_rate: float = 1e-2
     lighting_learning_rate: float = 5e-2
     renderer: Callable | None = None
@@ -140,6 +152,8 @@ class OptimizeOptions:
             raise ValueError(f"average must be in [0, 1), got {self.average!r}")
         if not (isinstance(self.crop, int) and self.crop >= 0):
             raise ValueError(f"crop must be an int >= 0, got {self.crop!r}")
+        if self.max_pixels is not None and not (isinstance(self.max_pixels, int) and self.max_pixels >= 1):
+            raise ValueError(f"max_pixels must be None or an int >= 1, got {self.max_pixels!r}")
         if not isinstance(self.weights, LossWeights):
             raise ValueError(f"weights must be a LossWeights, got {type(self.weights).__name__}")
         if not (isinstance(self.adam_quantile, (int, float)) and 0.0 < self.adam_quantile <= 1.0):
@@ -282,6 +296,30 @@ def _views(key, cameras, targets, boxes, outside, k: int | None, crop: int):
     return cams, tgt, out
 
 
+def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, crop: int, geometry: tuple):
+    """`gradient(key, x, app) -> ((loss, terms), (gx, g_app))` of a step: on the step's views, or with
+    `options.device_mesh` on every device from its own (`views_gradient`)."""
+    def select(key, local, idx):
+        cams, tgt, out, box = local
+        cams, tgt = cams[idx], tgt[idx]
+        box, out = (None if box is None else box[idx]), (None if out is None else out[idx])
+        return crop_views(key, cams, tgt, box, crop) + (None,) if crop else (cams, tgt, out)
+
+    mesh = options.device_mesh
+    if mesh is not None:
+        if valid is None:
+            raise ValueError("valid: needed with options.device_mesh (jaxgenus.optim.spread_views)")
+        devices = mesh.shape[AXIS]
+        return lambda key, x, app: views_gradient(loss_fn, mesh, min(-(-k // devices), len(valid) // devices),
+                                                  select)(key, x, app, views, valid, geometry)
+
+    def gradient(key, x, app):
+        cams, tgt, out = _views(key, views[0], views[1], views[3], views[2], k, crop)
+        return jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry)
+
+    return gradient
+
+
 def _appearance_step(app, g_app, app_state, rates, lr_scale, vmask):
     """Plain Adam on (albedo, lighting), albedo kept >= 0 and 0 on padding; also whether it is finite."""
     upd, new_state = plain_adam(1.0).update(g_app, app_state)
@@ -303,30 +341,34 @@ def _record(loss, terms, gx, info_b, info_f, ok, inverted) -> StepRecord:
 
 
 def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale,
-                   outside=None) -> tuple[OptimizerState, StepRecord]:
-    """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program)."""
+                   outside=None, valid=None) -> tuple[OptimizerState, StepRecord]:
+    """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program).
+    `valid`: with `options.device_mesh`, which views are real (`spread_views`)."""
     mesh, rest = state.mesh, state.rest_vertices
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
     adam, avg = options.adam(), options.average
-    crop = options.crop if options.crop and options.crop < max(cameras.height, cameras.width) else 0
+    k, crop = step_views(len(cameras), cameras.height, cameras.width, options)
     boxes = target_boxes(targets, margin=crop // 8) if crop else None
     outside = None if crop else outside  # crops move the principal points: the whole-view maps no longer line up
     photo = state.appearance is not None
     rates = (options.albedo_learning_rate, options.lighting_learning_rate)
 
-    def loss_fn(x, app, cams, tgt, out):
-        m = Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
-        return objective(m, cams, tgt, rest, weights=options.weights, renderer=options.renderer,
+    def loss_fn(x, app, cams, tgt, out, geometry):
+        faces, n_vertices, n_faces, rest_x = geometry
+        m = Mesh(vertices=x, faces=faces, n_vertices=n_vertices, n_faces=n_faces)
+        return objective(m, cams, tgt, rest_x, weights=options.weights, renderer=options.renderer,
                          render_settings=options.render, appearance=app, outside=out)
 
     def solve(b, x0):
         return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
 
+    geometry = (mesh.faces, mesh.n_vertices, mesh.n_faces, rest)  # passed, not closed over (device meshes)
+    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes), valid, k, crop, geometry)
+
     def step(c: _Carry, _):
         key, sub = jax.random.split(c.key)
-        cams, tgt, out = _views(sub, cameras, targets, boxes, outside, options.views_per_step, crop)
-        (loss, terms), (gx, g_app) = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(c.x, c.app, cams, tgt, out)
+        (loss, terms), (gx, g_app) = gradient(sub, c.x, c.app)
         gx = jnp.where(vmask, gx, 0.0)
         gu, info_b = solve(gx, c.gu)
         updates, new_adam = adam.update(gu, c.adam)

@@ -18,21 +18,21 @@ from jaxtyping import Array, Float, Int
 
 from jaxgenus.geometry import Cameras
 
-__all__ = ["crop_views", "pyramid_level", "resolution_factors", "scaled_cameras", "target_boxes"]
+__all__ = ["crop_views", "pyramid_level", "resolution_factors", "scaled_cameras", "step_views", "target_boxes"]
 
 
 def resolution_factors(height: int, width: int, n_cycles: int, coarse: int, native_cycles: int) -> list[int]:
-    """Downsampling factor of each cycle: a power of two that brings the longer side
-    to about `coarse` pixels (at least 0.75 x coarse) for all but the last
-    `native_cycles` cycles, which run at the images' own resolution (factor 1).
+    """Downsampling factor of each cycle: the last `native_cycles` cycles fit the images at their
+    own resolution (factor 1); the others climb the pyramid from the power of two `F` that brings
+    the longer side to about `coarse` pixels (at least 0.75 x coarse), halving the factor every
+    cycle down to 2: F, F/2, ..., 2, 2 (1600 px, coarse 128, 4 cycles: 16, 8, 4, 1).
     `coarse = 0` or images already that small: 1 throughout."""
     side = max(height, width)
     if coarse <= 0 or side < 1.5 * coarse:
         return [1] * n_cycles
-    f = 2 ** int(math.floor(math.log2(side / (0.75 * coarse))))
-    f = max(f, 1)
+    f = max(2 ** int(math.floor(math.log2(side / (0.75 * coarse)))), 1)
     n_native = min(max(native_cycles, 0), n_cycles)
-    return [f] * (n_cycles - n_native) + [1] * n_native
+    return [max(f >> c, min(f, 2)) for c in range(n_cycles - n_native)] + [1] * n_native
 
 
 def scaled_cameras(cams: Cameras, factor: int) -> Cameras:
@@ -104,3 +104,19 @@ def crop_views(key, cams: Cameras, targets, boxes, size: int):
     shift = jnp.stack([ox, oy], axis=1).astype(cams.principal_point.dtype)
     cropped = Cameras(cams.rotation, cams.translation, cams.focal, cams.principal_point - shift, sh, sw)
     return cropped, crop
+
+
+def step_views(n_views: int, height: int, width: int, options) -> tuple[int, int]:
+    """`(views, crop)` one step renders: `views` of the `n_views` cameras (all, or
+    `options.views_per_step`), whole (`crop` 0) or through random `crop x crop` windows:
+    `options.crop` when set, else the largest square that keeps the step within
+    `options.max_pixels` when even one whole view holds more."""
+    k = n_views if options.views_per_step is None else min(options.views_per_step, n_views)
+    if options.crop:
+        return k, options.crop if options.crop < max(height, width) else 0
+    budget = options.max_pixels
+    if budget is None or k * height * width <= budget:
+        return k, 0
+    if height * width <= budget:
+        return budget // (height * width), 0
+    return 1, math.isqrt(budget)

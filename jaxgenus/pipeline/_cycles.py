@@ -56,6 +56,9 @@ class Level(NamedTuple):
         crop: > 0: the cycle fits random `crop x crop` windows of them.
         outside: the targets' outside-distance maps (containment), or None.
         factor: the images were downsampled by this factor.
+        views, window, pixels: what one step renders (`jaxgenus.optim.step_views`): `views`
+            views, whole (`window` 0) or through `window x window` windows; `pixels` in all.
+        valid: views split over devices (`jaxgenus.optim.spread_views`): which are real; else None.
     """
 
     cameras: Cameras
@@ -63,6 +66,10 @@ class Level(NamedTuple):
     crop: int
     outside: jax.Array | None
     factor: int
+    views: int = 0
+    window: int = 0
+    pixels: int = 0
+    valid: jax.Array | None = None
 
 
 class CycleOutput(NamedTuple):
@@ -71,7 +78,7 @@ class CycleOutput(NamedTuple):
     record: StepRecord  # (n_steps,) arrays
     overflow: jax.Array  # faces drawn incompletely at the end of the optimizer block
     status: jax.Array  # RemeshStatus of the remesh, -1 when there was none
-    clock: tuple  # host clock (us mod 2^31) after the optimizer and at the end
+    clock: tuple  # host clock (us mod 2^31) at the start, after the optimizer and at the end
     mesh: object  # the mesh after the cycle
 
 
@@ -124,12 +131,14 @@ def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
     return new_state, info.status
 
 
-def cycle(state, cams, targets, outside, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
+def cycle(state, cams, targets, outside, valid, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
           remesh_options: RemeshOptions | None):
     """One cycle: `n_steps` optimizer steps at `lr_scale` (`outside`: the targets' outside-distance
     maps, or None), then a remesh to `length` (world units) if `length > 0` and `remesh_options`."""
     clock = jax.ShapeDtypeStruct((), jnp.int32)
-    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside)
+    t_start = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
+    lr_scale = lr_scale * (1.0 + 0.0 * t_start.astype(lr_scale.dtype))  # the optimizer runs after t_start
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid)
     overflow = jnp.zeros((), jnp.int32)
     if opt.render is not None and opt.render.plan is not None:  # only a planned splat can truncate faces
         _, info = render(state.mesh, cams, channels=("alpha",), sigma=opt.render.sigma, plan=opt.render.plan,
@@ -137,6 +146,7 @@ def cycle(state, cams, targets, outside, lr_scale, length, *, n_steps: int, opt:
         overflow = info.n_overflow
     t_opt = io_callback(_clock_us, clock, record.loss[-1], ordered=True)
     status = jnp.int32(-1)
+    length = length * (1.0 + 0.0 * t_opt.astype(length.dtype))  # the remesh runs after t_opt is read
     if remesh_options is not None:  # None: the connectivity is kept (no remesh is traced)
         state, status = jax.lax.cond(
             length > 0,
@@ -145,7 +155,7 @@ def cycle(state, cams, targets, outside, lr_scale, length, *, n_steps: int, opt:
             state,
         )
     t_end = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
-    return state, CycleOutput(record, overflow, status, (t_opt, t_end), state.mesh)
+    return state, CycleOutput(record, overflow, status, (t_start, t_opt, t_end), state.mesh)
 
 
 _STATIC = ("n_steps", "opt", "remesh_options")
@@ -153,9 +163,9 @@ _cycle_jit = jax.jit(cycle, static_argnames=_STATIC, donate_argnames=("state",))
 
 
 @jax.jit(static_argnames=_STATIC, donate_argnames=("state",))
-def _all_cycles(state, cams, targets, outside, lr_scales, lengths, *, n_steps, opt, remesh_options):
+def _all_cycles(state, cams, targets, outside, valid, lr_scales, lengths, *, n_steps, opt, remesh_options):
     def body(s, xs):
-        return cycle(s, cams, targets, outside, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
+        return cycle(s, cams, targets, outside, valid, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
 
     return jax.lax.scan(body, state, (lr_scales, lengths))
 
@@ -178,9 +188,11 @@ def _cycle_plan(mesh, cams, options) -> RasterPlan | None:
     return _plan_bucket(plan_render(mesh, cams, sigma=options.render.sigma, face_margin=1.3))
 
 
-def _optimize_options(options: ReconstructOptions, plan: RasterPlan | None, crop: int = 0) -> OptimizeOptions:
-    """The optimizer's settings of a cycle: the run's, with the cycle's plan and crop."""
-    return dataclasses.replace(options.optimize, crop=crop, render=dataclasses.replace(options.render, plan=plan))
+def _optimize_options(options: ReconstructOptions, plan: RasterPlan | None, level: Level) -> OptimizeOptions:
+    """The optimizer's settings of a cycle: the run's, with the cycle's plan, crop and devices."""
+    mesh = None if level.valid is None else level.valid.sharding.mesh
+    return dataclasses.replace(options.optimize, crop=level.crop, render=dataclasses.replace(options.render, plan=plan),
+                               device_mesh=mesh)
 
 
 def _us_between(a, b) -> float:
@@ -194,7 +206,8 @@ def _row(c: int, out, *, remeshed: bool, loss, compilations: int, seconds: float
     return CycleRecord(
         cycle=c, faces=int(m.n_faces), vertices=int(m.n_vertices), chi=euler_characteristic(m), loss=float(loss),
         truncated_faces=int(out.overflow), compilations=compilations, seconds=seconds, elapsed=elapsed,
-        remesh_status=status, remesh_seconds=_us_between(*out.clock) if remeshed else None,
+        remesh_status=status, remesh_seconds=_us_between(*out.clock[1:]) if remeshed else None,
+        optimizer_seconds=_us_between(*out.clock[:2]),
     )
 
 
@@ -211,10 +224,11 @@ def _joined(steps: list[dict]) -> dict:
 
 
 def run_per_cycle(state, levels: list[Level], world_lengths, options: ReconstructOptions, t0: float,
-                  callback: Callable | None) -> CycleRun:
+                  callback: Callable | None, estimate: Callable | None = None) -> CycleRun:
     """One compiled cycle per cycle: cycle c fits `levels[c]` and remeshes to `world_lengths[c]`
     after (0: none). `t0` is the run's start (`perf_counter`); `callback(row, mesh)` is called
-    after every cycle, and the time spent in it is reported, not counted."""
+    after every cycle, and the time spent in it is reported, not counted; `estimate(rows)`: the
+    seconds the fit still needs after the cycles `rows` (the rows' `eta`)."""
     steps, cycles, plans, compiled, waited = [], [], set(), 0, 0.0
     n = options.steps_per_cycle
     for c, level in enumerate(levels):
@@ -223,8 +237,8 @@ def run_per_cycle(state, levels: list[Level], world_lengths, options: Reconstruc
         plans.add(plan)
         with count_compilations() as counts:
             state, out = _cycle_jit(
-                state, level.cameras, level.targets, level.outside, jnp.float32(options.lr_decay**c),
-                jnp.float32(world_lengths[c]), n_steps=n, opt=_optimize_options(options, plan, level.crop),
+                state, level.cameras, level.targets, level.outside, level.valid, jnp.float32(options.lr_decay**c),
+                jnp.float32(world_lengths[c]), n_steps=n, opt=_optimize_options(options, plan, level),
                 remesh_options=options.remesh,
             )
             out = jax.device_get(out)
@@ -233,6 +247,8 @@ def run_per_cycle(state, levels: list[Level], world_lengths, options: Reconstruc
         row = _row(c, out, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1], compilations=counts["cycle"],
                    seconds=now - tc, elapsed=now - t0 - waited)
         compiled += counts["cycle"]
+        if estimate is not None:
+            row = dataclasses.replace(row, eta=float(estimate(cycles + [row])))
         cycles.append(row)
         if callback is not None:
             tb = time.perf_counter()
@@ -267,13 +283,14 @@ def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructO
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
     with count_compilations() as counts:
         state, out = _all_cycles(
-            state, level.cameras, level.targets, level.outside, lr_scales, jnp.asarray(world_lengths, jnp.float32),
-            n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, level.crop),
+            state, level.cameras, level.targets, level.outside, level.valid, lr_scales,
+            jnp.asarray(world_lengths, jnp.float32),
+            n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, level),
             remesh_options=options.remesh,
         )
         out = jax.device_get(out)
     wall = time.perf_counter() - t0
-    t_end = np.asarray(out.clock[1], np.int64)
+    t_end = np.asarray(out.clock[2], np.int64)
     elapsed = [wall - _us_between(t_end[c], t_end[-1]) for c in range(n)]
     steps, cycles = [], []
     for c in range(n):

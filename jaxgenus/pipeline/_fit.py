@@ -12,14 +12,14 @@ import dataclasses
 import time
 from typing import Callable
 
-import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.geometry import Mesh, genus as mesh_genus, is_closed_manifold
-from jaxgenus.optim import init_optimizer_state, outside_distance, pyramid_level, resolution_factors, scaled_cameras
+from jaxgenus.optim import init_optimizer_state, place
 from jaxgenus.pipeline._cycles import CycleRun, Level, run_one_jit, run_per_cycle
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.pipeline._schedule import CostModel, levels as fit_levels, schedule_line, world_lengths
 from jaxgenus.pipeline._setup import Setup
 from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
@@ -34,34 +34,6 @@ class FitIndex:
 
     fit: int = 0
     fits: int = 1
-
-
-def _levels(setup: Setup, options: ReconstructOptions) -> list[Level]:
-    """The level each cycle fits: downsampled copies of the targets (the schedule), the
-    native level through crops when `optimize.crop` is set (only after downsampled cycles);
-    one program of `one_jit` fits the native level throughout."""
-    cams, tg = setup.cams, setup.targets
-    factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
-                                 options.native_cycles)
-    scheduled = factors[0] > 1
-    if options.one_jit:  # one program, one image size: the last level throughout
-        factors = [factors[-1]] * options.n_cycles
-    built = {}
-    for f in sorted(set(factors)):
-        level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
-        outside = (jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2))
-                   if options.optimize.weights.containment > 0 else None)
-        crop = options.optimize.crop if (f == 1 and scheduled) else 0
-        built[f] = Level(scaled_cameras(cams, f), jnp.asarray(level), crop, outside, f)
-    return [built[f] for f in factors]
-
-
-def _world_lengths(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[float]:
-    """The remesh edge length after each cycle (canonical units; 0: none), in pixels of the level
-    the next cycle fits."""
-    lengths = options.edge_lengths()
-    return [lengths[c] * setup.pixel * levels[min(c + 1, len(levels) - 1)].factor if c < len(lengths) else 0.0
-            for c in range(options.n_cycles)]
 
 
 def _initial_state(start: Start, setup: Setup, options: ReconstructOptions, key):
@@ -100,15 +72,6 @@ def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
             "are probably not the object's own (history['handles'])"]
 
 
-def _schedule_line(options: ReconstructOptions, setup: Setup, levels: list[Level]) -> str:
-    cams = setup.cams
-    line = f"optimizing: {options.n_cycles} cycles x {options.steps_per_cycle} steps (the first one compiles)"
-    if levels[0].factor > 1:
-        line += (f"; images {cams.width}x{cams.height} fitted at 1/{', 1/'.join(str(lv.factor) for lv in levels)}"
-                 " of their size" + (f", native cycles through {levels[-1].crop}^2 crops" if levels[-1].crop else ""))
-    return line
-
-
 def _history(setup: Setup, start: Start, options: ReconstructOptions, run: CycleRun, verdict: Verdict,
              levels: list[Level], seconds: float, index: FitIndex) -> History:
     app = run.state.appearance
@@ -122,8 +85,9 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
         start_silhouette_iou=verdict.start_silhouette_iou, normal_error_deg=verdict.normal_error_deg,
         photo_error=verdict.photo_error,
         lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(), handles=start.handles,
-        resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop}
-                    for lv in levels],
+        resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop,
+                     "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],
+        devices=1 if levels[0].valid is None else int(levels[0].valid.sharding.mesh.size),
         ok=verdict.ok, warnings=(verdict.warnings + _estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
                                  + list(setup.notes)),
     )
@@ -133,15 +97,21 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
         callback: Callable | None, say: Callable[[str], None]) -> Reconstruction:
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
-    levels = _levels(setup, options)
-    lengths = _world_lengths(setup, options, levels)
+    levels = fit_levels(setup, options, start.mesh)
+    lengths = world_lengths(setup, options, levels)
     where = dict(n_cycles=options.n_cycles, fit=index.fit, fits=index.fits)
     frame = setup.frame
     user_callback = None if callback is None else (
         lambda row, m: callback(dataclasses.replace(row, **where), frame.mesh_to_world(m)))
-    say(_schedule_line(options, setup, levels))
-    driver = run_one_jit if options.one_jit else run_per_cycle
-    run = driver(_initial_state(start, setup, options, key), levels, lengths, options, t0, user_callback)
+    say(schedule_line(options, setup, levels))
+    state = _initial_state(start, setup, options, key)
+    if levels[0].valid is not None:  # views split over devices: the state is replicated on them
+        state = place(state, levels[0].valid.sharding.mesh, split=False)
+    if options.one_jit:
+        run = run_one_jit(state, levels, lengths, options, t0, user_callback)
+    else:
+        run = run_per_cycle(state, levels, lengths, options, t0, user_callback,
+                            CostModel.of(setup, options, levels, lengths).remaining)
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)

@@ -115,6 +115,10 @@ class CycleRecord(_Readable):
         seconds: wall time of the cycle; elapsed: since the run started.
         remesh_status: `RemeshStatus` name of the remesh after the cycle (None: no remesh).
         remesh_seconds: its wall time (None: no remesh).
+        optimizer_seconds: the wall time of the cycle's optimizer steps (the rest of `seconds`
+            is compiling, the remesh and transfers).
+        eta: the seconds this fit was estimated to need after the cycle (its later cycles, from
+            the pixels each renders per step, and its verdict); None where not estimated.
         n_cycles: cycles of this fit (`options.fine()` has more).
         fit, fits: this cycle's fit (0: the first; k: the k-th refit) and the fits the run
             plans (`1 + ReconstructOptions.refit_count`; a refit that fits its images
@@ -132,6 +136,8 @@ class CycleRecord(_Readable):
     elapsed: float
     remesh_status: str | None = None
     remesh_seconds: float | None = None
+    optimizer_seconds: float | None = None
+    eta: float | None = None
     n_cycles: int = 0
     fit: int = 0
     fits: int = 1
@@ -168,9 +174,11 @@ class History(_Readable):
             (albedo and lighting) against the photo where both cover (photo targets only).
         lighting: the estimated `(3, 24)` or `(3, 3)` lighting as nested lists (photo targets only;
             see `jaxgenus.render_photo` for its convention).
-        resolution: per cycle, `{"factor", "size", "crop"}`: the images were fitted
-            downsampled by `factor` to `size = (height, width)`, through random
-            `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`).
+        resolution: per cycle, `{"factor", "size", "crop", "views", "window", "pixels"}`: the images
+            were fitted downsampled by `factor` to `size = (height, width)`, through random
+            `crop x crop` windows when `crop` > 0 (`ReconstructOptions.coarse_resolution`); a step
+            rendered `views` views, whole or through `window x window` windows, `pixels` in all.
+        devices: the devices the views were split over (`ReconstructOptions.devices`).
         handles: per handle of the start, a `HandleRecord` of where it came from.
         ok: the result matches its images (see `jaxgenus.pipeline._verdict`); warnings: why not,
             and what else to know.
@@ -196,6 +204,7 @@ class History(_Readable):
     photo_error: list[float] | None = None
     lighting: list | None = None
     resolution: list[dict] = dataclasses.field(default_factory=list)
+    devices: int = 1
     handles: tuple[HandleRecord, ...] = ()
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)

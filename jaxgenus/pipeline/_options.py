@@ -87,6 +87,10 @@ class ReconstructOptions:
             of two to about `coarse_resolution` pixels (edge lengths in those pixels),
             and the last ones fit the images at their own resolution.
             `coarse_resolution = 0` fits every cycle at full size.
+        devices: the local devices (of the default backend) the views are split over: None (the
+            default) all of them, 1 one. With several, each device renders and differentiates its own
+            views every step (`jaxgenus.optim._devices`), the mesh and optimizer state replicated
+            (`history["devices"]`). At most one device per view.
         one_jit: run all cycles (optimizer blocks and FFI remeshes) as one jit-compiled
             `lax.scan` with one rasterizer plan sized for the final face count, instead of
             one compiled block per cycle driven from Python. One compilation per run;
@@ -130,6 +134,7 @@ class ReconstructOptions:
     downsample: int = 1
     coarse_resolution: int = 128
     native_cycles: int = 1
+    devices: int | None = None
     one_jit: bool = False
     lighting: str = "sh"
     hidden_handles: str = "images"
@@ -143,6 +148,8 @@ class ReconstructOptions:
             _positive_int(name, getattr(self, name), 0)
         if self.refits is not None:
             _positive_int("refits", self.refits, 0)
+        if self.devices is not None:
+            _positive_int("devices", self.devices)
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)

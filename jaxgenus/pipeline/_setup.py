@@ -11,6 +11,7 @@ that later stages read of the inputs; refits reuse it.
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Callable
 
 import numpy as np
@@ -84,13 +85,14 @@ def _estimated(hulls: HullTable, options: ReconstructOptions, say: Callable[[str
     return estimate
 
 
-def _thin(tg: Targets, cams: Cameras, pixel: float, options: ReconstructOptions, say) -> tuple[float | None, bool]:
+def _thin(tg: Targets, cams: Cameras, hulls: HullTable, pixel: float, options: ReconstructOptions, say) -> tuple[float | None, bool]:
     """The hull's thickness in image pixels, and whether it is under `fine_below` pixels of
     the level the first cycles fit (a structure thin there needs fine() even when the
     images themselves resolve it)."""
     if options.fine_below <= 0:
         return None, False
-    thickness = hull_thickness(tg.alpha, cams, options.hull_resolutions[0], pixel)
+    hull = hulls.get(options.hull_resolutions[0], 0)[0]
+    thickness = math.inf if hull is None else hull_thickness(tg.alpha, cams, options.hull_resolutions[0], pixel, hull=hull)
     coarse = resolution_factors(cams.height, cams.width, 1, options.coarse_resolution, 0)[0]
     if thickness / coarse >= options.fine_below:
         return thickness, False
@@ -121,10 +123,10 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
         f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}")
     lo, hi = visual_hull_bounds(tg.alpha, canonical)
     pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
-    hulls = HullTable(tg.alpha, canonical)
+    hulls = HullTable(tg.alpha, canonical, (lo, hi))
     notes = _cut_note(tg.alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
-    thickness, fine = _thin(tg, canonical, pixel, options, say)
+    thickness, fine = _thin(tg, canonical, hulls, pixel, options, say)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options.fine() if fine else options,

@@ -16,7 +16,7 @@ import dataclasses
 import numpy as np
 
 from jaxgenus.geometry import Cameras
-from jaxgenus.capture import largest_component, visual_hull
+from jaxgenus.capture import hull_occupancy, largest_component, visual_hull
 from jaxgenus.geometry import Mesh, capacity_bucket
 from jaxgenus.pipeline._history import GenusEstimate, GenusEvidence, HandleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -51,17 +51,23 @@ class Start:
 
 class HullTable:
     """The largest component of the visual hull and its genus per `(resolution, closing)`, built on
-    first use. One table serves one run (the genus estimate and the start share its hulls)."""
+    first use within `bounds` (the hull's bounds, computed once). One table serves one run (the
+    genus estimate, the thin-structure test and the start share its hulls); the occupancy grid of
+    a resolution is sampled once and closed as each closing asks."""
 
-    def __init__(self, alpha, cams: Cameras):
-        self._alpha, self._cams, self._built = alpha, cams, {}
+    def __init__(self, alpha, cams: Cameras, bounds):
+        self._alpha, self._cams, self._bounds, self._built, self._grids = alpha, cams, bounds, {}, {}
 
     def get(self, resolution: int, closing: int) -> tuple[Mesh | None, int]:
         """`(hull, genus)`, or `(None, -1)` when there is no hull at that grid."""
         key = (resolution, closing)
         if key not in self._built:
             try:
-                hull = largest_component(visual_hull(self._alpha, self._cams, resolution=resolution, closing=closing))
+                if resolution not in self._grids:
+                    self._grids[resolution] = hull_occupancy(self._alpha, self._cams, resolution=resolution,
+                                                             bounds=self._bounds)
+                hull = largest_component(visual_hull(self._alpha, self._cams, closing=closing,
+                                                     occupancy=self._grids[resolution]))
                 self._built[key] = (hull, mesh_genus(hull))
             except ValueError:
                 self._built[key] = (None, -1)

@@ -54,36 +54,55 @@ class Verdict(NamedTuple):
     photo_error: list[float] | None = None
 
 
+#: Pixels rendered at once by the verdict: views go through the renderer in chunks of at most
+#: this many pixels (one view at least), so its memory does not grow with the number of views.
+CHUNK_PIXELS = 1 << 23
+
+
+def _chunks(cams: Cameras) -> list[np.ndarray]:
+    size = max(1, CHUNK_PIXELS // (cams.height * cams.width))
+    return [np.arange(i, min(i + size, len(cams))) for i in range(0, len(cams), size)]
+
+
 def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None):
     """Per-view IoU of the rendered silhouette with `alpha (N, H, W)` (both at 0.5), and with
     `normals (N, H, W, 3)` the per-view mean angle (degrees) between rendered and target
-    normals over the pixels both cover (NaN where none)."""
+    normals over the pixels both cover (NaN where none). Views are rendered in chunks."""
     channels = ("alpha",) if normals is None else ("alpha", "normal")
-    img = np.asarray(render(mesh, cams, channels=channels, sigma=sigma), np.float64)
-    mine, theirs = img[..., 0] >= 0.5, np.asarray(alpha) >= 0.5
-    inter = (mine & theirs).sum(axis=(1, 2))
-    union = (mine | theirs).sum(axis=(1, 2))
-    iou = np.where(union > 0, inter / np.maximum(union, 1), 1.0)
-    if normals is None:
-        return iou.tolist(), None
-    n = img[..., 1:4]
-    n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-    t = np.asarray(normals, np.float64)
-    t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-12)
-    ang = np.degrees(np.arccos(np.clip(np.sum(n * t, axis=-1), -1.0, 1.0)))
-    both = mine & theirs
-    err = [float(ang[i][both[i]].mean()) if both[i].any() else float("nan") for i in range(len(ang))]
-    return iou.tolist(), err
+    ious, errors = [], []
+    for idx in _chunks(cams):
+        img = np.asarray(render(mesh, cams[idx], channels=channels, sigma=sigma))
+        mine, theirs = img[..., 0] >= 0.5, np.asarray(alpha[idx]) >= 0.5
+        inter = (mine & theirs).sum(axis=(1, 2))
+        union = (mine | theirs).sum(axis=(1, 2))
+        ious += np.where(union > 0, inter / np.maximum(union, 1), 1.0).tolist()
+        if normals is None:
+            continue
+        both = mine & theirs
+        for k, i in enumerate(idx):
+            n = img[k, ..., 1:4][both[k]].astype(np.float64)
+            t = np.asarray(normals[i], np.float64)[both[k]]
+            n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
+            t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-12)
+            ang = np.degrees(np.arccos(np.clip(np.sum(n * t, axis=-1), -1.0, 1.0)))
+            errors.append(float(ang.mean()) if len(ang) else float("nan"))
+    return ious, (None if normals is None else errors)
 
 
 def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float) -> list[float]:
     """Per view, the mean absolute RGB difference between `render_photo` and `photos (N, H, W, 4)`
-    (straight, not premultiplied) over the pixels both cover at alpha 0.5 (NaN where none)."""
-    img = np.asarray(render_photo(mesh, cams, albedo, lighting, sigma=sigma), np.float64)
-    both = (img[..., 3] >= 0.5) & (np.asarray(photos)[..., 3] >= 0.5)
-    rgb = img[..., :3] / np.maximum(img[..., 3:], 1e-6)
-    err = np.abs(rgb - np.asarray(photos, np.float64)[..., :3]).mean(axis=-1)
-    return [float(err[i][both[i]].mean()) if both[i].any() else float("nan") for i in range(len(err))]
+    (straight, not premultiplied) over the pixels both cover at alpha 0.5 (NaN where none).
+    Views are rendered in chunks."""
+    errors = []
+    for idx in _chunks(cams):
+        img = np.asarray(render_photo(mesh, cams[idx], albedo, lighting, sigma=sigma))
+        for k, i in enumerate(idx):
+            photo = np.asarray(photos[i])
+            both = (img[k, ..., 3] >= 0.5) & (photo[..., 3] >= 0.5)
+            rgb = img[k][both][:, :3].astype(np.float64) / np.maximum(img[k][both][:, 3:], 1e-6)
+            err = np.abs(rgb - photo[both][:, :3].astype(np.float64)).mean(axis=-1)
+            errors.append(float(err.mean()) if len(err) else float("nan"))
+    return errors
 
 
 @dataclasses.dataclass(frozen=True)

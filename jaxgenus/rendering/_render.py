@@ -20,6 +20,7 @@ from jaxtyping import Array, Int
 from jaxgenus.geometry import Cameras
 from jaxgenus.geometry import Mesh
 from jaxgenus.rendering._faces import Faces, check_inputs, check_scalar, face_setup
+from jaxgenus.rendering._sharded import per_device, view_sharding
 from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
 from jaxgenus.rendering._splat import SplatConfig, Tier, splat
 from jaxgenus.rendering._splat_native import splat_all
@@ -151,6 +152,9 @@ def render(
         return_info: also return a `RenderInfo` with overflow counts.
 
     Only the requested channels are computed. jit/vmap friendly; float64 under x64.
+    Cameras whose arrays are sharded over devices along the view axis (a `NamedSharding`
+    of their leading axis; traced ones under explicit sharding) are rendered per device,
+    each device its own views, and the images come back sharded the same way.
     """
     check_inputs(mesh, cameras)
     if isinstance(channels, str):
@@ -202,10 +206,13 @@ def render(
         raise ValueError(f"plan must be a RasterPlan, got {type(plan).__name__}")
 
     light = None if light_direction is None else tuple(float(x) for x in np.asarray(light_direction).ravel())
-    return _render_jit(
-        mesh, cameras, plan, face_colors, channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces),
-        light=light, ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native,
-    )
+    static = dict(channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces), light=light,
+                  ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native)
+    where = view_sharding(cameras.rotation)
+    if where is not None:  # views split over devices: each renders its own (module `_sharded`)
+        return per_device(lambda m, fc, c: _render_jit(m, c, plan, fc, **static), where, len(cameras),
+                          replicated=(mesh, face_colors), split=(cameras,), out_split=True)
+    return _render_jit(mesh, cameras, plan, face_colors, **static)
 
 
 def _splat_windows(fs: Faces, plan: RasterPlan, n_faces: int, cfg: SplatConfig):

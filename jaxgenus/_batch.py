@@ -1,0 +1,131 @@
+"""`jaxgenus batch CAPTURES --out OUT`: every capture of a folder reconstructed, one by one.
+
+A capture is a subfolder of CAPTURES holding its images (`images/`, `image/` or `rgb/`), optionally
+its masks (`masks/` or `mask/`), and one camera file (`.json`, `.npz`, `*_par.txt`, or a COLMAP
+model that `load_cameras` finds in the subfolder).
+Each is run as `jaxgenus reconstruct` with the options given after the folder, writing
+`OUT/NAME/mesh.obj`, its history `OUT/NAME/mesh.json`, the run's output `OUT/NAME/log.txt` and
+`OUT/NAME/status.json` (exit code, genus, verdict, seconds, and the reason when it failed). A
+broken capture is reported and the others go on; a rerun skips the captures that finished (a
+status with a mesh). With `--num-processes N --process-id I` (no coordinator needed), process I
+takes every N-th capture; within a process the views of a capture are split over its devices.
+`OUT/summary.md` and `OUT/summary.json` list every capture that has a status.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import re
+import time
+from pathlib import Path
+from typing import Callable
+
+__all__ = ["capture_folders", "run_batch"]
+
+_IMAGES = ("images", "image", "rgb")
+_MASKS = ("masks", "mask")
+
+
+def capture_folders(root: Path) -> list[Path]:
+    """The subfolders of `root` (sorted by name; hidden ones skipped)."""
+    if not root.is_dir():
+        raise ValueError(f"CAPTURES: {root} is not a folder")
+    found = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+    if not found:
+        raise ValueError(f"CAPTURES: {root} has no capture subfolders")
+    return found
+
+
+def _inputs(folder: Path) -> list[str]:
+    images = next((folder / n for n in _IMAGES if (folder / n).is_dir()), None)
+    if images is None:
+        raise ValueError(f"{folder}: no images folder ({', '.join(_IMAGES)})")
+    masks = next((folder / n for n in _MASKS if (folder / n).is_dir()), None)
+    return ["--images", str(images), "--cameras", str(_camera_file(folder))] + (["--masks", str(masks)] if masks else [])
+
+
+def _camera_file(folder: Path) -> Path:
+    """The capture's one camera file (`.json`, `.npz`, `*_par.txt`), else the folder itself (a COLMAP
+    model in it, which `load_cameras` finds)."""
+    files = sorted(p for p in folder.iterdir() if p.is_file() and (p.suffix in (".json", ".npz")
+                                                                   or p.name.endswith("_par.txt")))
+    if len(files) > 1:
+        raise ValueError(f"{folder}: several camera files ({', '.join(p.name for p in files)}); keep one")
+    return files[0] if files else folder
+
+
+def _status(code: int, out: Path, log: str, seconds: float) -> dict:
+    status = {"exit": code, "seconds": round(seconds, 1), "genus": None, "ok": False, "reason": None}
+    history = out / "mesh.json"
+    if history.exists() and code != 1:
+        h = json.loads(history.read_text())
+        found = re.search(r"^genus (-?\d+) \(", log, re.MULTILINE)  # the result's genus, as the run printed it
+        status.update(ok=bool(h.get("ok")), seconds=round(float(h.get("seconds", seconds)), 1),
+                      genus=int(found.group(1)) if found else None)
+        if not status["ok"]:
+            status["reason"] = "; ".join(h.get("warnings", [])[:2]) or "the verdict failed"
+    errors = [line for line in log.splitlines() if line.startswith("error:")]
+    if code not in (0, 3, 4) or errors:
+        status["reason"] = errors[-1][len("error: "):] if errors else f"exit {code}"
+    return status
+
+
+def _one(folder: Path, out: Path, options: list[str], reconstruct: Callable[[list[str]], int]) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    buffer, t0 = io.StringIO(), time.perf_counter()
+    with contextlib.redirect_stdout(buffer), contextlib.redirect_stderr(buffer):
+        try:
+            code = reconstruct(["reconstruct", *_inputs(folder), "--out", str(out / "mesh.obj"), *options])
+        except ValueError as err:
+            print(f"error: {' '.join(str(err).split())}")
+            code = 1
+        except Exception as err:  # a broken capture must not stop the batch
+            print(f"error: {type(err).__name__}: {' '.join(str(err).split())[:300]}")
+            code = 1
+    (out / "log.txt").write_text(buffer.getvalue())
+    status = _status(code, out, buffer.getvalue(), time.perf_counter() - t0)
+    (out / "status.json").write_text(json.dumps(status))
+    return status
+
+
+def _summary(out: Path, names: list[str]) -> list[dict]:
+    rows = []
+    for name in names:
+        path = out / name / "status.json"
+        if path.exists():
+            rows.append({"capture": name, **json.loads(path.read_text())})
+    (out / "summary.json").write_text(json.dumps(rows, indent=1))
+    lines = ["| capture | exit | genus | verdict | seconds | reason |", "|---|---|---|---|---|---|"]
+    for r in rows:
+        verdict = "ok" if r["ok"] else "NOT OK"
+        lines.append(f"| {r['capture']} | {r['exit']} | {r['genus']} | {verdict} | {r['seconds']} | "
+                     f"{r['reason'] or ''} |")
+    (out / "summary.md").write_text("\n".join(lines) + "\n")
+    return rows
+
+
+def run_batch(root: Path, out: Path, options: list[str], reconstruct: Callable[[list[str]], int], *,
+              num_processes: int = 1, process_id: int = 0) -> int:
+    """Reconstruct every capture of `root` into `out` (module doc); `reconstruct(argv)` runs one
+    `jaxgenus reconstruct`. Returns 0 when every capture of this process fitted, else 4."""
+    if not (num_processes >= 1 and 0 <= process_id < num_processes):
+        raise ValueError(f"--process-id must be in [0, {num_processes}), got {process_id}")
+    folders = capture_folders(root)
+    out.mkdir(parents=True, exist_ok=True)
+    failed = 0
+    for folder in folders[process_id::num_processes]:
+        target = out / folder.name
+        done = target / "status.json"
+        if done.exists() and (target / "mesh.obj").exists():
+            print(f"{folder.name}: finished before, skipped")
+            continue
+        status = _one(folder, target, options, reconstruct)
+        failed += status["exit"] != 0
+        print(f"{folder.name}: exit {status['exit']}, genus {status['genus']}, "
+              f"{'ok' if status['ok'] else 'NOT OK'}, {status['seconds']} s"
+              + (f" ({status['reason']})" if status["reason"] else ""), flush=True)
+    rows = _summary(out, [f.name for f in folders])
+    print(f"summary: {sum(r['exit'] == 0 for r in rows)} of {len(folders)} captures fitted; {out / 'summary.md'}")
+    return 0 if failed == 0 else 4

@@ -1,0 +1,97 @@
+"""An optimizer step over several devices: the views split over a device mesh, the mesh replicated.
+
+`spread_views` lays N views out over D devices: view i goes to device i mod D, each device's
+block padded to the same length with copies of its first view marked invalid. `views_gradient`
+is the step's loss and gradient computed on every device from its own views with
+`jax.shard_map`: each device samples its share of the step's views among its valid ones (a key
+folded with its index), renders them and takes the gradient of the objective there; the losses
+and gradients are averaged over the devices (`pmean`), which is the mean over all sampled views
+(every device samples the same number). The geometric terms are computed alike on every device
+and stay as they are. One device: not used (the caller's path is today's).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
+
+__all__ = ["AXIS", "device_mesh", "place", "spread_views", "views_gradient"]
+
+AXIS = "views"
+
+
+def device_mesh(devices: int | None):
+    """A 1-D mesh (axis `"views"`) of the first `devices` devices of the default backend (None: all of
+    them; every process's when processes were joined by `jax.distributed`); None when that is one."""
+    local = jax.devices() if jax.process_count() > 1 else jax.local_devices()
+    n = len(local) if devices is None else int(devices)
+    if not 1 <= n <= len(local):
+        raise ValueError(f"devices must be between 1 and the {len(local)} devices, got {devices}")
+    if n == 1:
+        return None
+    return jax.make_mesh((n,), (AXIS,), axis_types=(AxisType.Auto,), devices=local[:n])
+
+
+def spread_views(n_views: int, n_devices: int) -> tuple[np.ndarray, np.ndarray]:
+    """`(order (N_pad,), valid (N_pad,))`: the view in each slot, device by device, and whether it is
+    a real view (not padding); `N_pad` is a multiple of `n_devices`."""
+    if n_views < n_devices:
+        raise ValueError(f"devices: {n_devices} devices for {n_views} views; use at most one device per view")
+    per = math.ceil(n_views / n_devices)
+    order = np.zeros(per * n_devices, np.int64)
+    valid = np.zeros(per * n_devices, bool)
+    for d in range(n_devices):
+        mine = np.arange(d, n_views, n_devices)
+        order[d * per : d * per + len(mine)] = mine
+        order[d * per + len(mine) : (d + 1) * per] = mine[0]
+        valid[d * per : d * per + len(mine)] = True
+    return order, valid
+
+
+def place(tree, mesh, split: bool):
+    """`tree`'s arrays on `mesh`: split along their leading axis, or replicated. Across processes every
+    process holds the whole value and hands over the parts its own devices keep."""
+    sharding = NamedSharding(mesh, P(AXIS) if split else P())
+
+    def put(a):
+        if not isinstance(a, (jax.Array, np.ndarray)):
+            return a
+        if jax.process_count() == 1:
+            return jax.device_put(a, sharding)
+        if jax.dtypes.issubdtype(a.dtype, jax.dtypes.prng_key):  # keys travel as their raw data
+            impl = jax.random.key_impl(a)
+            return jax.random.wrap_key_data(put(jax.random.key_data(a)), impl=impl)
+        host = np.asarray(a)
+        return jax.make_array_from_callback(host.shape, sharding, lambda index: host[index])
+
+    return jax.tree.map(put, tree)
+
+
+def views_gradient(loss_fn: Callable, mesh, per_device: int, select: Callable) -> Callable:
+    """`gradient(key, x, app, views, valid, geometry) -> ((loss, terms), (gx, g_app))` over the devices of
+    `mesh` (module doc): `loss_fn(x, app, cameras, targets, outside, geometry)`, everything it reads passed
+    in (a value closed over from outside `shard_map` would carry the outer sharding). `views`: a tuple of per-view arrays (or None) split over the devices;
+    `select(key, views, index)` turns a device's sampled view indices into `(cameras, targets,
+    outside)` it renders (crops and all). A device samples `per_device` of its views, its valid ones
+    first (when it has fewer valid ones, copies of its first view fill in)."""
+
+    def local(x, app, key, geometry, views, valid):
+        sub = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
+        weights = valid + 1e-6 * (1.0 - valid)  # padding only when a device runs out of views
+        idx = jax.random.choice(sub, valid.shape[0], (per_device,), replace=False, p=weights / jnp.sum(weights))
+        cams, tgt, out = select(jax.random.fold_in(sub, 1), views, idx)
+        result = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry)
+        return jax.lax.pmean(result, AXIS)
+
+    mapped = jax.shard_map(local, mesh=mesh, in_specs=(P(), P(), P(), P(), P(AXIS), P(AXIS)), out_specs=P(),
+                           check_vma=False)
+
+    def gradient(key, x, app, views, valid, geometry):
+        return mapped(x, app, key, geometry, views, valid.astype(jnp.float32))
+
+    return gradient

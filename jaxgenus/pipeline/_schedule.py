@@ -1,0 +1,176 @@
+"""The resolution schedule of a fit and what it costs.
+
+`levels` gives each cycle its pyramid level (`resolution_factors`: coarse copies first, each
+level twice the last, the images' own size for the final refinement) and how a step renders it
+(`step_views`: whole views, fewer views or one window, within `OptimizeOptions.max_pixels`).
+
+`CostModel` estimates the time a fit still needs, before the cycles run, from the pixels each
+step renders: a step costs `a + b * pixels` seconds, with `a` (the mesh's part: solves, remesh
+carry, projection) and `b` (per rendered pixel) measured on this machine from the cycles that
+ran (one level measured: `a` is taken as the cost of `PIXELS_PER_FACE` pixels per face); a
+cycle at a level not fitted before also compiles (as long as the longest compile so far), a
+remeshing cycle remeshes (the mean remesh time so far), and the verdict renders every view at full
+size (forward only: a third of a step's cost per pixel).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxgenus.geometry import Mesh
+from jaxgenus.optim import (device_mesh, outside_distance, place, pyramid_level, resolution_factors, scaled_cameras,
+                            spread_views, step_views)
+from jaxgenus.pipeline._cycles import Level
+from jaxgenus.pipeline._history import CycleRecord
+from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.pipeline._setup import Setup
+
+__all__ = ["CostModel", "PIXELS_PER_FACE", "levels", "detail_floor", "schedule_line", "world_lengths"]
+
+#: The prior of a step's fixed cost in pixels rendered, per face of the mesh, used while only one
+#: level has been timed (DTU scan65 on 2 CPU cores at 9k faces: 0.13 s per step at 30k pixels,
+#: 0.29 s at 480k, 1.7 s at 7.7M).
+PIXELS_PER_FACE = 64
+
+
+def detail_floor(setup: Setup, options: ReconstructOptions, start: Mesh) -> int:
+    """The finest level (downsampling factor, a power of two) worth fitting photos or silhouettes at:
+    the one whose pixels are half the edge length the face budget allows on the start's surface
+    (its area in equilateral faces). The albedo lives on the vertices; in finer images the photos' texture, which it cannot
+    hold, moves the surface instead (DTU scan65, 41 photos, 12k faces, edges of 24 px at full size:
+    held-out PSNR 21.1, 22.8, 22.7 and 22.0 dB when the finest level is 1/16, 1/8, 1/4 and 1/1;
+    this rule picks 1/8). Silhouettes too: their outline is no finer than the mesh's edges, and
+    the full-size level samples one view a step (masks of the same capture: 21.97 dB fitted to
+    1/4, 21.70 dB to 1/1). Normal maps are fitted to the full size (their shading shows detail
+    at every pixel: skull at 512^2, CD 0.83x the 128^2 run's)."""
+    if setup.targets.kind == "normals":
+        return 1
+    v, f = start.to_numpy()
+    v = np.asarray(v, np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
+    edge = math.sqrt(4.0 * area / (math.sqrt(3.0) * max(options.face_budget, 1)))
+    ratio = edge / (2.0 * setup.pixel)
+    return 2 ** int(math.floor(math.log2(ratio))) if ratio >= 2 else 1
+
+
+def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level]:
+    """The level each cycle fits: downsampled copies of the targets (the schedule, photos no finer
+    than `detail_floor`), the native level through crops when `optimize.crop` is set (only after
+    downsampled cycles); one program of `one_jit` fits the last level throughout."""
+    cams, tg = setup.cams, setup.targets
+    factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
+                                 options.native_cycles)
+    scheduled = factors[0] > 1
+    floor = detail_floor(setup, options, start)
+    factors = [max(f, min(floor, factors[0])) if scheduled else f for f in factors]
+    if options.one_jit:  # one program, one image size: the last level throughout
+        factors = [factors[-1]] * options.n_cycles
+    mesh = device_mesh(min(options.devices or jax.device_count(), len(cams)))
+    order, valid = spread_views(len(cams), mesh.size) if mesh is not None else (None, None)
+    built = {}
+    for f in sorted(set(factors)):
+        level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
+        outside = (jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2))
+                   if options.optimize.weights.containment > 0 else None)
+        crop = options.optimize.crop if (f == 1 and scheduled) else 0
+        lc = scaled_cameras(cams, f)
+        views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
+        if mesh is not None:  # views split over the devices: each renders ceil(views / devices) of its own
+            views = min(-(-views // mesh.size), len(order) // mesh.size) * mesh.size
+            lc, level, outside = place((lc[order], level[order], None if outside is None else outside[order]),
+                                       mesh, split=True)
+        pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
+        built[f] = Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
+                         None if mesh is None else place(jnp.asarray(valid), mesh, split=True))
+    return [built[f] for f in factors]
+
+
+def world_lengths(setup: Setup, options: ReconstructOptions, fitted: list[Level]) -> list[float]:
+    """The remesh edge length after each cycle (canonical units; 0: none), in pixels of the level
+    the next cycle fits."""
+    lengths = options.edge_lengths()
+    return [lengths[c] * setup.pixel * fitted[min(c + 1, len(fitted) - 1)].factor if c < len(lengths) else 0.0
+            for c in range(options.n_cycles)]
+
+
+def schedule_line(options: ReconstructOptions, setup: Setup, fitted: list[Level]) -> str:
+    cams = setup.cams
+    line = f"optimizing: {options.n_cycles} cycles x {options.steps_per_cycle} steps (the first one compiles)"
+    if fitted[0].factor > 1:
+        line += (f"; images {cams.width}x{cams.height} fitted at 1/{', 1/'.join(str(lv.factor) for lv in fitted)}"
+                 " of their size")
+    if fitted[-1].factor > 1 and setup.targets.kind != "normals":
+        line += (f"; {setup.targets.kind}s no finer than 1/{fitted[-1].factor}: finer images hold detail "
+                 f"{options.face_budget} faces cannot (raise max_faces to fit them finer)")
+    last = fitted[-1]
+    how = (f"{last.views} of {len(cams)} views" if last.views < len(cams) else "all views") + (
+        f" through {min(last.window, last.cameras.width)}x{min(last.window, last.cameras.height)} windows"
+        if last.window else "")
+    return line + f"; the last level renders {how} per step ({last.pixels / 1e6:.2f} Mpixel)"
+
+
+@dataclasses.dataclass(frozen=True)
+class CostModel:
+    """The seconds a fit still needs after some of its cycles (module doc).
+
+    Attributes:
+        pixels: per cycle, the pixels one step renders.
+        remeshes: per cycle, whether it remeshes.
+        steps: optimizer steps per cycle.
+        verdict_pixels: pixels the verdict renders (every view at full size, once per render).
+    """
+
+    pixels: tuple[int, ...]
+    remeshes: tuple[bool, ...]
+    steps: int
+    verdict_pixels: int
+
+    @staticmethod
+    def of(setup: Setup, options: ReconstructOptions, fitted: list[Level], lengths: list[float]) -> CostModel:
+        renders = 2 + (setup.targets.kind == "photo")  # the result's and the start's silhouettes, its colours
+        n, h, w = len(setup.cams), setup.cams.height, setup.cams.width
+        return CostModel(tuple(lv.pixels for lv in fitted), tuple(bool(x > 0 and options.remesh is not None)
+                                                                   for x in lengths),
+                         options.steps_per_cycle, renders * n * h * w)
+
+    def step_costs(self, done: list[CycleRecord]) -> tuple[float, float]:
+        """`(a, b)`: seconds per step and per rendered pixel per step, fitted to the cycles done (a
+        step time that does not grow with the pixels: `b` = 0); one level timed: `b` as `prior`."""
+        p = np.array([float(self.pixels[r.cycle]) for r in done])
+        t = np.array([(r.optimizer_seconds or r.seconds) / self.steps for r in done])
+        if len(set(p.tolist())) >= 2:
+            b, a = np.polyfit(p, t, 1)
+            return (float(a), float(b)) if a >= 0 and b > 0 else (float(np.mean(t)), 0.0)
+        b = self.prior(done)
+        return max(float(np.mean(t)) - b * p[0], 0.0), b
+
+    def prior(self, done: list[CycleRecord]) -> float:
+        """The per-pixel cost of a step if the first cycle's step cost `PIXELS_PER_FACE` pixels per
+        face on top of the pixels it rendered."""
+        r = done[0]
+        return (r.optimizer_seconds or r.seconds) / self.steps / (PIXELS_PER_FACE * max(r.faces, 1) + self.pixels[0])
+
+    def remaining(self, done: list[CycleRecord]) -> float:
+        """Seconds after the last of `done` (the cycles so far, in order) to the end of the fit."""
+        if not done:
+            return float("nan")
+        a, b = self.step_costs(done)
+        overhead = [max(r.seconds - (r.optimizer_seconds or r.seconds) - (r.remesh_seconds or 0.0), 0.0)
+                    for r in done]
+        fitted = {self.pixels[r.cycle] for r in done}
+        compile_s = max(overhead)  # a new level compiles a new program: as long as the longest so far
+        remesh = [r.remesh_seconds for r in done if r.remesh_seconds is not None]
+        remesh_s = float(np.mean(remesh)) if remesh else 0.0
+        total = 0.0
+        for c in range(done[-1].cycle + 1, len(self.pixels)):
+            p = self.pixels[c]
+            total += self.steps * (a + b * p) + (compile_s if p not in fitted else 0.0)
+            total += remesh_s if self.remeshes[c] else 0.0
+            fitted.add(p)
+        verdict = (b if b > 0 else self.prior(done)) * self.verdict_pixels / 3.0  # forward only: a third of a step's
+        return total + verdict

@@ -1,0 +1,78 @@
+"""The fit's cost model (`jaxgenus.pipeline._schedule.CostModel`) and the chunked verdict renders."""
+
+from __future__ import annotations
+
+import types
+
+import numpy as np
+import pytest
+from _meshes import torus
+
+import jaxgenus as jg
+from jaxgenus.pipeline import _schedule, _verdict
+
+
+def _row(c, pixels, steps, a, b, faces=1000, compile_s=0.0, remesh=1.0):
+    opt = steps * (a + b * pixels)
+    return jg.CycleRecord(cycle=c, faces=faces, vertices=faces // 2 + 2, chi=2, loss=0.0, truncated_faces=0,
+                          compilations=1, seconds=opt + compile_s + remesh, elapsed=0.0, remesh_status="OK",
+                          remesh_seconds=remesh, optimizer_seconds=opt)
+
+
+def test_cost_model_recovers_a_linear_step_cost():
+    """Steps costing a + b * pixels: after two levels the model knows a and b, and the estimate of the
+    rest (later levels, a compile per new level, the remeshes, the verdict) is exact."""
+    a, b, n = 0.1, 2e-7, 150
+    model = _schedule.CostModel(pixels=(30_000, 120_000, 480_000, 2_000_000), remeshes=(True, True, True, False),
+                                steps=n, verdict_pixels=3 * 41 * 1_920_000)
+    done = [_row(0, 30_000, n, a, b, compile_s=8.0), _row(1, 120_000, n, a, b, compile_s=6.0)]
+    assert model.step_costs(done) == pytest.approx((a, b), rel=1e-6)
+    expected = n * (a + b * 480_000) + 8.0 + 1.0 + n * (a + b * 2_000_000) + 8.0 + b * model.verdict_pixels / 3
+    assert model.remaining(done) == pytest.approx(expected, rel=1e-6)
+    # one level timed: the fixed part is PIXELS_PER_FACE pixels per face, the rest follows the pixels
+    one = model.step_costs(done[:1])
+    assert one[0] / one[1] == pytest.approx(_schedule.PIXELS_PER_FACE * 1000)
+    assert one[0] + one[1] * 30_000 == pytest.approx(a + b * 30_000)
+    assert model.remaining(done + [_row(2, 480_000, n, a, b), _row(3, 2_000_000, n, a, b)]) == pytest.approx(
+        b * model.verdict_pixels / 3, rel=1e-6)
+    # times that do not grow with the pixels (small levels): the per-pixel cost stays the first cycle's prior
+    flat = [_row(0, 30_000, n, 0.14, 0.0), _row(1, 120_000, n, 0.14, 0.0), _row(2, 120_000, n, 0.13, 0.0)]
+    assert model.step_costs(flat) == pytest.approx((np.mean([0.14, 0.14, 0.13]), 0.0))
+    prior = 0.14 / (_schedule.PIXELS_PER_FACE * 1000 + 30_000)  # the verdict's per-pixel cost then
+    assert model.remaining(flat) == pytest.approx(n * np.mean([0.14, 0.14, 0.13]) + prior * model.verdict_pixels / 3)
+
+
+def test_verdict_renders_in_chunks_with_the_same_numbers(monkeypatch):
+    cams = jg.sphere_cameras(5, radius=3.0, resolution=48)
+    mesh = torus(1.0, 0.3, capacity=2048)
+    target = np.asarray(jg.render_targets(torus(1.0, 0.35, capacity=2048), cams))
+    whole = _verdict.silhouette_ious(mesh, cams, target[..., 3], sigma=0.1, normals=2 * target[..., :3] - 1)
+    monkeypatch.setattr(_verdict, "CHUNK_PIXELS", 2 * 48 * 48)  # 2 views at a time: chunks of 2, 2, 1
+    assert len(_verdict._chunks(cams)) == 3
+    chunked = _verdict.silhouette_ious(mesh, cams, target[..., 3], sigma=0.1, normals=2 * target[..., :3] - 1)
+    assert chunked[0] == whole[0] and np.allclose(chunked[1], whole[1], rtol=1e-12)
+    assert min(whole[0]) > 0.5
+
+
+def test_detail_floor_follows_the_face_budget():
+    """Photos are fitted down to the level whose pixels are half the edge the face budget allows:
+    a unit sphere (area 4 pi) at 12k faces has edges of 0.0618; pixels of 0.001 -> 30.9 px per half
+    edge -> 1/16; 4x the faces halve the edge -> 1/8; silhouettes alike; normal maps are not floored."""
+    sphere = jg.Mesh.from_numpy(*(np.asarray(a) for a in _icosphere()))
+    setup = types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"), pixel=0.001)
+    opts = jg.ReconstructOptions()
+    assert _schedule.detail_floor(setup, opts, sphere) == 16
+    assert _schedule.detail_floor(setup, opts.updated(max_faces=48000), sphere) == 8
+    assert _schedule.detail_floor(types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"), pixel=0.1),
+                                 opts, sphere) == 1
+    setup.targets.kind = "silhouette"
+    assert _schedule.detail_floor(setup, opts, sphere) == 16
+    setup.targets.kind = "normals"
+    assert _schedule.detail_floor(setup, opts, sphere) == 1
+
+
+def _icosphere():
+    import trimesh
+
+    s = trimesh.creation.icosphere(subdivisions=4)
+    return s.vertices, s.faces
