@@ -409,6 +409,7 @@ def optimize_block(
     n_steps: int,
     options: OptimizeOptions = OptimizeOptions(),
     lr_scale=1.0,
+    valid=None,
 ) -> tuple[OptimizerState, StepRecord]:
     """Run `n_steps` large-steps uniform-Adam steps in one jit-compiled `lax.scan`.
 
@@ -423,6 +424,8 @@ def optimize_block(
         options: `OptimizeOptions` (static).
         lr_scale: factor on `options.learning_rate` for this block; a runtime value,
             so a learning-rate schedule over blocks does not recompile.
+        valid: with `options.device_mesh`: `(N,)` which views are real, the cameras and targets laid
+            out by `jaxgenus.optim.spread_views` and split over the mesh (`place`).
 
     Returns:
         `(new_state, record)`: a `StepRecord` whose fields (`record["loss"]`, ...,
@@ -439,4 +442,7 @@ def optimize_block(
         raise ValueError(
             f"targets must have shape ({len(cameras)}, {cameras.height}, {cameras.width}, C), got {targets.shape}"
         )
-    return _optimize_block_jit(state, cameras, targets, n_steps, options, jnp.asarray(lr_scale, state.mesh.vertices.dtype))
+    if (options.device_mesh is None) != (valid is None):
+        raise ValueError("valid: give it exactly when options.device_mesh is set (jaxgenus.optim.spread_views)")
+    return _optimize_block_jit(state, cameras, targets, n_steps, options, jnp.asarray(lr_scale, state.mesh.vertices.dtype),
+                               None, valid)

@@ -87,8 +87,8 @@ class ReconstructOptions:
             of two to about `coarse_resolution` pixels (edge lengths in those pixels),
             and the last ones fit the images at their own resolution.
             `coarse_resolution = 0` fits every cycle at full size.
-        devices: the local devices (of the default backend) the views are split over: None (the
-            default) all of them, 1 one. With several, each device renders and differentiates its own
+        devices: the devices (of the default backend; every process's when processes were joined by
+            `jax.distributed`) the views are split over: None (the default) all of them, 1 one. With several, each device renders and differentiates its own
             views every step (`jaxgenus.optim._devices`), the mesh and optimizer state replicated
             (`history["devices"]`). At most one device per view.
         one_jit: run all cycles (optimizer blocks and FFI remeshes) as one jit-compiled
