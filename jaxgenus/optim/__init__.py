@@ -5,6 +5,7 @@ large-steps solves, uniform Adam, and `optimize_block`. Depends on `geometry` an
 from jaxgenus.optim._adam import GradientTransformation, UniformAdamState, uniform_adam
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._compilations import count_compilations
+from jaxgenus.optim._consistency import consistency_windows, photo_consistency, view_neighbours
 from jaxgenus.optim._containment import containment_penalty, outside_distance
 from jaxgenus.optim._largesteps import (
     SolveInfo,
@@ -18,12 +19,11 @@ from jaxgenus.optim._optimize import (
     Appearance,
     OptimizeOptions,
     OptimizerState,
-    RECORD_KEYS,
     init_optimizer_state,
     optimize_block,
-    StepRecord,
     optimize_steps,
 )
+from jaxgenus.optim._record import RECORD_KEYS, StepRecord
 from jaxgenus.optim._devices import device_mesh, place, spread_views
 from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras, step_views
 
@@ -38,6 +38,9 @@ __all__ = [
     "StepRecord",
     "UniformAdamState",
     "carving_term",
+    "consistency_windows",
+    "photo_consistency",
+    "view_neighbours",
     "containment_penalty",
     "count_compilations",
     "from_differential",

@@ -27,10 +27,12 @@ from __future__ import annotations
 import dataclasses
 from typing import Callable
 
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxgenus.optim._carving import carving_term
+from jaxgenus.optim._consistency import photo_consistency
 from jaxgenus.optim._containment import containment_penalty
 from jaxgenus.geometry import bilaplacian_energy, inversion_penalty
 from jaxgenus.rendering import RenderSettings, face_colors, render
@@ -65,6 +67,11 @@ class LossWeights:
             resolution (docs/reconstruction.md).
         carve: `carving_term` (normal maps only; value 0, a force). Off here; `reconstruct`
             sets it in refits (`ReconstructOptions.refit_carve`).
+        consistency: multi-view photo-consistency of photo targets (`photo_consistency`: mean
+            `1 - NCC` over textured windows, each view against a neighbour through the rendered
+            depth); used when `objective` is given `neighbours`. Off by default: it raised
+            held-out PSNR on a real capture but cost accuracy on synthetic ray-cast photos
+            (docs/photometric.md, "Photo-consistency").
     """
 
     alpha: float = 1.0
@@ -75,6 +82,7 @@ class LossWeights:
     albedo_smoothness: float = 20.0
     containment: float = 0.0
     carve: float = 0.0
+    consistency: float = 0.0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -149,6 +157,16 @@ def image_loss(
     return sum(terms.values(), jnp.zeros((), rendered.dtype))
 
 
+def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours):
+    """The photo-consistency loss of the views against their neighbours (the neighbours' depth constant)."""
+    nb_cams, nb_photos = neighbours
+    fixed = jax.tree.map(jax.lax.stop_gradient, mesh)
+    kw = {k: v for k, v in kw.items() if k != "face_colors"}
+    nb_depth = jax.lax.stop_gradient(renderer(fixed, nb_cams, channels=("depth", "alpha"), **kw))
+    loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth)
+    return loss
+
+
 def objective(
     mesh,
     cameras,
@@ -160,6 +178,7 @@ def objective(
     render_settings: RenderSettings | None = None,
     appearance: tuple | None = None,
     outside: Float[Array, "N H W"] | None = None,
+    neighbours: tuple | None = None,
 ) -> tuple[Float[Array, ""], dict[str, Array]]:
     """The total objective at `mesh.vertices` and its weighted terms.
 
@@ -172,6 +191,9 @@ def objective(
     through Lambertian face colours (`photo` and `albedo_smoothness` terms).
     `outside`: the targets' `outside_distance` maps (`(N, H, W)`, pixels), for the
     `containment` term (`jaxgenus.optim._containment`); None skips it.
+    `neighbours=(cameras, photos)`: photo targets: one neighbour view per view of `cameras` and
+    its premultiplied RGBA photo, for the `consistency` term (`jaxgenus.optim._consistency`);
+    the neighbours' depth is rendered for the visibility test and held constant.
     """
     renderer = render if renderer is None else renderer
     photo = appearance is not None
@@ -184,12 +206,17 @@ def objective(
             terms["albedo_smoothness"] = weights.albedo_smoothness * albedo_smoothness(albedo, mesh)
     colour = weights.photo if photo else weights.normal
     carve = bool(weights.carve) and not photo and target.shape[-1] == 4
-    if weights.alpha or (colour and target.shape[-1] == 4) or carve:
-        channels = render_channels(target, photo) + (("depth",) if carve else ())
+    consistent = bool(weights.consistency) and photo and neighbours is not None
+    if weights.alpha or (colour and target.shape[-1] == 4) or carve or consistent:
+        channels = render_channels(target, photo) + (("depth",) if carve or consistent else ())
         rendered = renderer(mesh, cameras, channels=channels, **kw)
-        if carve:
+        if carve or consistent:
             rendered, depth = rendered[..., :4], rendered[..., 4]
+        if carve:
             terms["carve"] = weights.carve * carving_term(rendered, depth, target)
+        if consistent:
+            terms["consistency"] = weights.consistency * _consistency(mesh, renderer, kw, rendered[..., 0], depth,
+                                                                      cameras, target, neighbours)
         terms.update(image_terms(rendered, target, weights, photo))
     if weights.bilaplacian:
         terms["bilaplacian"] = weights.bilaplacian * bilaplacian_energy(mesh.vertices, mesh.faces)

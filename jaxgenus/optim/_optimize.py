@@ -37,44 +37,17 @@ from jaxgenus.geometry import Mesh
 from jaxgenus.geometry import uniform_laplacian
 from jaxgenus.optim._devices import AXIS, views_gradient
 from jaxgenus.optim._pyramid import crop_views, step_views, target_boxes
+from jaxgenus.optim._record import RECORD_KEYS, StepRecord, step_record
 from jaxgenus.rendering import LIGHTING_SHAPE, RenderSettings, lighting_model
 
 __all__ = [
     "Appearance",
     "OptimizeOptions",
     "OptimizerState",
-    "RECORD_KEYS",
     "init_optimizer_state",
-    "StepRecord",
     "optimize_block",
     "optimize_steps",
 ]
-
-RECORD_KEYS = (
-    "loss",
-    "alpha",
-    "normal",
-    "bilaplacian",
-    "inversion",
-    "photo",
-    "albedo_smoothness",
-    "containment",
-    "grad_norm",
-    "cg_iterations_forward",
-    "cg_iterations_backward",
-    "cg_residual",
-    "inverted_faces",
-    "status",
-)
-"""Keys of the per-step record of `optimize_block`.
-
-`loss` and the weighted terms are evaluated at the step's starting `x` (a term
-that is switched off reads 0); `grad_norm` is `||d loss / d x||`;
-`cg_iterations_*` are the iterations of the gradient pull-back (backward) and
-of the new-`x` solve (forward); `cg_residual` is the larger true relative
-residual of the two; `inverted_faces` counts faces flipped relative to the rest
-shape after the step; `status` is 0 (ok), 1 (a solve hit `cg_max_iter`) or
-2 (non-finite loss, gradient or update: the step is skipped, the state unchanged)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -239,34 +212,6 @@ def init_optimizer_state(mesh: Mesh, key: PRNGKeyArray, *, albedo=None, lighting
     )
 
 
-class StepRecord(eqx.Module):
-    """What each optimizer step reports (`RECORD_KEYS`; see there): scalars inside a step,
-    `(n_steps,)` arrays after a block. `record["loss"]` reads a field by name."""
-
-    loss: Array
-    alpha: Array
-    normal: Array
-    bilaplacian: Array
-    inversion: Array
-    photo: Array
-    albedo_smoothness: Array
-    containment: Array
-    grad_norm: Array
-    cg_iterations_forward: Array
-    cg_iterations_backward: Array
-    cg_residual: Array
-    inverted_faces: Array
-    status: Array
-
-    def __getitem__(self, name: str) -> Array:
-        if name not in RECORD_KEYS:
-            raise KeyError(name)
-        return getattr(self, name)
-
-    def keys(self) -> tuple[str, ...]:
-        return RECORD_KEYS
-
-
 class _Carry(NamedTuple):
     """The scan carry of `optimize_steps`: `x`, `u`, the last pulled-back gradient, the Adam
     state, the PRNG key, the iterate average, and the photo fit's `(albedo, lighting)` and
@@ -282,25 +227,32 @@ class _Carry(NamedTuple):
     app_adam: UniformAdamState | None
 
 
-def _views(key, cameras, targets, boxes, outside, k: int | None, crop: int):
-    """The step's views: all, or `k` sampled without replacement; through random crops when `crop`."""
+def _views(key, cameras, targets, boxes, outside, table, k: int | None, crop: int):
+    """The step's views: all, or `k` sampled without replacement; through random crops when `crop`.
+    With a neighbour `table` (`view_neighbours`), also one random neighbour of each (its whole view)."""
     n_views = len(cameras)
     if k is None or k >= n_views:
+        idx = jnp.arange(n_views)
         cams, tgt, box, out = cameras, targets, boxes, outside
     else:
         idx = jax.random.choice(key, n_views, (k,), replace=False)
         cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
         out = None if outside is None else outside[idx]
+    near = None
+    if table is not None:
+        pick = jax.random.randint(jax.random.fold_in(key, 2), idx.shape, 0, table.shape[1])
+        nb = table[idx, pick]
+        near = (cameras[nb], targets[nb])
     if crop:
         cams, tgt = crop_views(jax.random.fold_in(key, 1), cams, tgt, box, crop)
-    return cams, tgt, out
+    return cams, tgt, out, near
 
 
 def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, crop: int, geometry: tuple):
     """`gradient(key, x, app) -> ((loss, terms), (gx, g_app))` of a step: on the step's views, or with
     `options.device_mesh` on every device from its own (`views_gradient`)."""
     def select(key, local, idx):
-        cams, tgt, out, box = local
+        cams, tgt, out, box = local[:4]
         cams, tgt = cams[idx], tgt[idx]
         box, out = (None if box is None else box[idx]), (None if out is None else out[idx])
         return crop_views(key, cams, tgt, box, crop) + (None,) if crop else (cams, tgt, out)
@@ -314,8 +266,8 @@ def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, cr
                                                   select)(key, x, app, views, valid, geometry)
 
     def gradient(key, x, app):
-        cams, tgt, out = _views(key, views[0], views[1], views[3], views[2], k, crop)
-        return jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry)
+        cams, tgt, out, near = _views(key, views[0], views[1], views[3], views[2], views[4], k, crop)
+        return jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry, near)
 
     return gradient
 
@@ -329,21 +281,12 @@ def _appearance_step(app, g_app, app_state, rates, lr_scale, vmask):
     return new, new_state, jnp.all(jnp.isfinite(new[0])) & jnp.all(jnp.isfinite(new[1]))
 
 
-def _record(loss, terms, gx, info_b, info_f, ok, inverted) -> StepRecord:
-    status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
-    zero = jnp.zeros((), loss.dtype)
-    return StepRecord(
-        loss=loss, **{name: terms.get(name, zero) for name in RECORD_KEYS[1:8]},
-        grad_norm=jnp.sqrt(jnp.sum(gx * gx)), cg_iterations_forward=info_f.iterations,
-        cg_iterations_backward=info_b.iterations, cg_residual=jnp.maximum(info_f.residual, info_b.residual),
-        inverted_faces=inverted, status=status,
-    )
-
-
 def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale,
-                   outside=None, valid=None) -> tuple[OptimizerState, StepRecord]:
+                   outside=None, valid=None, neighbours=None) -> tuple[OptimizerState, StepRecord]:
     """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program).
-    `valid`: with `options.device_mesh`, which views are real (`spread_views`)."""
+    `valid`: with `options.device_mesh`, which views are real (`spread_views`). `neighbours`: photo
+    targets: `(N, M)` neighbour views of every view (`view_neighbours`) for the photo-consistency
+    term (on one device only: with a device mesh it is not used)."""
     mesh, rest = state.mesh, state.rest_vertices
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
@@ -354,17 +297,18 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     photo = state.appearance is not None
     rates = (options.albedo_learning_rate, options.lighting_learning_rate)
 
-    def loss_fn(x, app, cams, tgt, out, geometry):
+    def loss_fn(x, app, cams, tgt, out, geometry, near=None):
         faces, n_vertices, n_faces, rest_x = geometry
         m = Mesh(vertices=x, faces=faces, n_vertices=n_vertices, n_faces=n_faces)
         return objective(m, cams, tgt, rest_x, weights=options.weights, renderer=options.renderer,
-                         render_settings=options.render, appearance=app, outside=out)
+                         render_settings=options.render, appearance=app, outside=out, neighbours=near)
 
     def solve(b, x0):
         return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
 
     geometry = (mesh.faces, mesh.n_vertices, mesh.n_faces, rest)  # passed, not closed over (device meshes)
-    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes), valid, k, crop, geometry)
+    table = neighbours if photo and options.weights.consistency and options.device_mesh is None else None
+    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes, table), valid, k, crop, geometry)
 
     def step(c: _Carry, _):
         key, sub = jax.random.split(c.key)
@@ -384,7 +328,7 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
                                                    (c.x, c.u, c.gu, c.adam, c.app, c.app_adam))
         x_avg = avg * c.x_avg + (1.0 - avg) * x if avg > 0 else x
         inverted = inverted_face_count(x, rest, mesh.faces, mesh.face_mask)
-        return _Carry(x, u, gu, adam_state, key, x_avg, app, app_adam), _record(loss, terms, gx, info_b, info_f, ok,
+        return _Carry(x, u, gu, adam_state, key, x_avg, app, app_adam), step_record(loss, terms, gx, info_b, info_f, ok,
                                                                                inverted)
 
     x0, ap = mesh.vertices, state.appearance
@@ -410,6 +354,7 @@ def optimize_block(
     options: OptimizeOptions = OptimizeOptions(),
     lr_scale=1.0,
     valid=None,
+    neighbours=None,
 ) -> tuple[OptimizerState, StepRecord]:
     """Run `n_steps` large-steps uniform-Adam steps in one jit-compiled `lax.scan`.
 
@@ -426,6 +371,9 @@ def optimize_block(
             so a learning-rate schedule over blocks does not recompile.
         valid: with `options.device_mesh`: `(N,)` which views are real, the cameras and targets laid
             out by `jaxgenus.optim.spread_views` and split over the mesh (`place`).
+        neighbours: photo targets: `(N, M)` int neighbour views of every view
+            (`jaxgenus.optim.view_neighbours`), which turns on the photo-consistency term
+            (`LossWeights.consistency`; one device only).
 
     Returns:
         `(new_state, record)`: a `StepRecord` whose fields (`record["loss"]`, ...,
@@ -444,5 +392,12 @@ def optimize_block(
         )
     if (options.device_mesh is None) != (valid is None):
         raise ValueError("valid: give it exactly when options.device_mesh is set (jaxgenus.optim.spread_views)")
+    if neighbours is not None:
+        neighbours = jnp.asarray(neighbours)
+        if neighbours.ndim != 2 or neighbours.shape[0] != len(cameras) or not jnp.issubdtype(neighbours.dtype, jnp.integer):
+            raise ValueError(f"neighbours must be an int array of shape ({len(cameras)}, M), got {neighbours.shape} "
+                             f"{neighbours.dtype}")
+        if bool(jnp.any((neighbours < 0) | (neighbours >= len(cameras)))):
+            raise ValueError(f"neighbours must index the {len(cameras)} views")
     return _optimize_block_jit(state, cameras, targets, n_steps, options, jnp.asarray(lr_scale, state.mesh.vertices.dtype),
-                               None, valid)
+                               None, valid, neighbours)

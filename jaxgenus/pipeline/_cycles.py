@@ -59,6 +59,7 @@ class Level(NamedTuple):
         views, window, pixels: what one step renders (`jaxgenus.optim.step_views`): `views`
             views, whole (`window` 0) or through `window x window` windows; `pixels` in all.
         valid: views split over devices (`jaxgenus.optim.spread_views`): which are real; else None.
+        neighbours: photo targets: `(N, M)` neighbour views of each view (photo-consistency), else None.
     """
 
     cameras: Cameras
@@ -70,6 +71,7 @@ class Level(NamedTuple):
     window: int = 0
     pixels: int = 0
     valid: jax.Array | None = None
+    neighbours: jax.Array | None = None
 
 
 class CycleOutput(NamedTuple):
@@ -131,14 +133,14 @@ def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
     return new_state, info.status
 
 
-def cycle(state, cams, targets, outside, valid, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
+def cycle(state, cams, targets, outside, valid, neighbours, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
           remesh_options: RemeshOptions | None):
     """One cycle: `n_steps` optimizer steps at `lr_scale` (`outside`: the targets' outside-distance
     maps, or None), then a remesh to `length` (world units) if `length > 0` and `remesh_options`."""
     clock = jax.ShapeDtypeStruct((), jnp.int32)
     t_start = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
     lr_scale = lr_scale * (1.0 + 0.0 * t_start.astype(lr_scale.dtype))  # the optimizer runs after t_start
-    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid)
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid, neighbours)
     overflow = jnp.zeros((), jnp.int32)
     if opt.render is not None and opt.render.plan is not None:  # only a planned splat can truncate faces
         _, info = render(state.mesh, cams, channels=("alpha",), sigma=opt.render.sigma, plan=opt.render.plan,
@@ -163,9 +165,9 @@ _cycle_jit = jax.jit(cycle, static_argnames=_STATIC, donate_argnames=("state",))
 
 
 @jax.jit(static_argnames=_STATIC, donate_argnames=("state",))
-def _all_cycles(state, cams, targets, outside, valid, lr_scales, lengths, *, n_steps, opt, remesh_options):
+def _all_cycles(state, cams, targets, outside, valid, neighbours, lr_scales, lengths, *, n_steps, opt, remesh_options):
     def body(s, xs):
-        return cycle(s, cams, targets, outside, valid, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
+        return cycle(s, cams, targets, outside, valid, neighbours, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
 
     return jax.lax.scan(body, state, (lr_scales, lengths))
 
@@ -237,7 +239,8 @@ def run_per_cycle(state, levels: list[Level], world_lengths, options: Reconstruc
         plans.add(plan)
         with count_compilations() as counts:
             state, out = _cycle_jit(
-                state, level.cameras, level.targets, level.outside, level.valid, jnp.float32(options.lr_decay**c),
+                state, level.cameras, level.targets, level.outside, level.valid, level.neighbours,
+                jnp.float32(options.lr_decay**c),
                 jnp.float32(world_lengths[c]), n_steps=n, opt=_optimize_options(options, plan, level),
                 remesh_options=options.remesh,
             )
@@ -283,7 +286,7 @@ def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructO
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
     with count_compilations() as counts:
         state, out = _all_cycles(
-            state, level.cameras, level.targets, level.outside, level.valid, lr_scales,
+            state, level.cameras, level.targets, level.outside, level.valid, level.neighbours, lr_scales,
             jnp.asarray(world_lengths, jnp.float32),
             n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, level),
             remesh_options=options.remesh,

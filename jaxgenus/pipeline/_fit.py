@@ -83,7 +83,7 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
         targets=setup.targets.kind, frame={"centre": setup.frame.centre.tolist(), "scale": setup.frame.scale},
         genus_estimate=setup.estimate, silhouette_iou=verdict.silhouette_iou,
         start_silhouette_iou=verdict.start_silhouette_iou, normal_error_deg=verdict.normal_error_deg,
-        photo_error=verdict.photo_error,
+        photo_error=verdict.photo_error, photo_consistency=verdict.photo_consistency,
         lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(), handles=start.handles,
         resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop,
                      "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],
@@ -116,9 +116,16 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     g = _result_genus(mesh)
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)
     photos = np.asarray(setup.images, np.float32) if setup.targets.kind == "photo" else None
+    finest = levels[-1]
+    consistency = None
+    if finest.neighbours is not None:  # the residual at the finest level fitted (straight colours)
+        level = np.asarray(finest.targets)
+        a = level[..., 3:]
+        level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
+        consistency = (finest.cameras, level, np.asarray(finest.neighbours))
     verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
                              None if app is None else (app.albedo, app.lighting), photos,
-                             carved_start=start.kind.startswith("visual_hull")), options)
+                             carved_start=start.kind.startswith("visual_hull"), consistency=consistency), options)
     say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
         f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views"
         + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg"))

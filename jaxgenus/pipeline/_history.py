@@ -172,6 +172,9 @@ class History(_Readable):
             where both cover the pixel (normal targets only, else None).
         photo_error: per view, the mean absolute RGB error of the result's render
             (albedo and lighting) against the photo where both cover (photo targets only).
+        photo_consistency: per view, the result's photo-consistency residual (mean `1 - NCC`
+            over textured windows against a neighbour view, at the finest level fitted; NaN where
+            there was nothing to compare) when photos were fitted with it, else None.
         lighting: the estimated `(3, 24)` or `(3, 3)` lighting as nested lists (photo targets only;
             see `jaxgenus.render_photo` for its convention).
         resolution: per cycle, `{"factor", "size", "crop", "views", "window", "pixels"}`: the images
@@ -202,6 +205,7 @@ class History(_Readable):
     start_silhouette_iou: list[float] = dataclasses.field(default_factory=list)
     normal_error_deg: list[float] | None = None
     photo_error: list[float] | None = None
+    photo_consistency: list[float] | None = None
     lighting: list | None = None
     resolution: list[dict] = dataclasses.field(default_factory=list)
     devices: int = 1

@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.geometry import Mesh
-from jaxgenus.optim import (device_mesh, outside_distance, place, pyramid_level, resolution_factors, scaled_cameras,
+from jaxgenus.optim import (device_mesh, view_neighbours, outside_distance, place, pyramid_level, resolution_factors, scaled_cameras,
                             spread_views, step_views)
 from jaxgenus.pipeline._cycles import Level
 from jaxgenus.pipeline._history import CycleRecord
@@ -72,6 +72,8 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
         factors = [factors[-1]] * options.n_cycles
     mesh = device_mesh(min(options.devices or jax.device_count(), len(cams)))
     order, valid = spread_views(len(cams), mesh.size) if mesh is not None else (None, None)
+    photo = tg.kind == "photo" and options.optimize.weights.consistency > 0 and mesh is None
+    table = jnp.asarray(view_neighbours(cams)) if photo else None  # photo-consistency pairs (canonical frame)
     built = {}
     for f in sorted(set(factors)):
         level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
@@ -86,7 +88,7 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
                                        mesh, split=True)
         pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
         built[f] = Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
-                         None if mesh is None else place(jnp.asarray(valid), mesh, split=True))
+                         None if mesh is None else place(jnp.asarray(valid), mesh, split=True), table)
     return [built[f] for f in factors]
 
 

@@ -25,7 +25,11 @@ A run is **not ok** (`ok = False`) when any of these holds, each with a warning:
 Warnings that do not make a run fail: faces inverted at the last step, faces
 the rasterizer dropped or truncated, remeshes that hit the face budget (the mesh
 is coarser than asked), photo views whose error is far above the others'
-(a change of exposure or light between views?).
+(a change of exposure or light between views?), views where photo-consistency had nothing
+to work with (no texture, no neighbour).
+
+Photo targets fitted with photo-consistency also get its residual per view
+(`consistency_residuals`: mean `1 - NCC` against a neighbour through the result's depth).
 """
 
 from __future__ import annotations
@@ -33,14 +37,16 @@ from __future__ import annotations
 import dataclasses
 from typing import NamedTuple
 
+import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.capture import Targets
 from jaxgenus.geometry import Cameras, Mesh
+from jaxgenus.optim import consistency_windows
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import render, render_photo
 
-__all__ = ["Evidence", "Verdict", "judge", "photo_errors", "silhouette_ious"]
+__all__ = ["Evidence", "Verdict", "consistency_residuals", "judge", "photo_errors", "silhouette_ious"]
 
 
 class Verdict(NamedTuple):
@@ -52,6 +58,7 @@ class Verdict(NamedTuple):
     ok: bool
     warnings: list[str]
     photo_error: list[float] | None = None
+    photo_consistency: list[float] | None = None
 
 
 #: Pixels rendered at once by the verdict: views go through the renderer in chunks of at most
@@ -105,6 +112,28 @@ def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting
     return errors
 
 
+def consistency_residuals(mesh: Mesh, cams: Cameras, photos: np.ndarray, table: np.ndarray, *,
+                          sigma: float) -> list[float]:
+    """Per view, the photo-consistency residual of `mesh` (mean `1 - NCC` over the textured windows,
+    `jaxgenus.optim.consistency_windows`) against its first neighbour in `table`, photos `(N, H, W, 4)`
+    straight RGBA; NaN where no window had texture or a neighbour. Views are rendered in chunks."""
+    out = []
+    for idx in _chunks(cams):
+        nb = table[idx, 0]
+        ref = np.asarray(photos[idx], np.float32)
+        near = np.asarray(photos[nb], np.float32)
+        ref[..., :3] *= ref[..., 3:]
+        near[..., :3] *= near[..., 3:]
+        r = render(mesh, cams[idx], channels=("alpha", "depth"), sigma=sigma)
+        d = render(mesh, cams[nb], channels=("depth", "alpha"), sigma=sigma)
+        ncc, w = consistency_windows(r[..., 1], r[..., 0], cams[idx], jnp.asarray(ref), cams[nb], jnp.asarray(near), d)
+        ncc, w = np.asarray(ncc, np.float64), np.asarray(w, np.float64)
+        for k, i in enumerate(idx):
+            n = w[k].sum()
+            out.append(float((w[k] * np.minimum(1.0 - ncc[k], 1.0)).sum() / n) if n > 0 and nb[k] != i else float("nan"))
+    return out
+
+
 @dataclasses.dataclass(frozen=True)
 class Evidence:
     """What the verdict compares (canonical frame).
@@ -117,6 +146,8 @@ class Evidence:
         genus_ok: the result has the requested genus.
         appearance: photo targets: `(albedo, lighting)` of the result, else None.
         photos: photo targets: the straight RGBA photos, else None.
+        consistency: photo targets with photo-consistency: `(cameras, photos, neighbours)` of the
+            finest level fitted (straight RGBA), for the residual per view; else None.
         carved_start: the start was carved from these very silhouettes (a visual hull), so it
             matches them by construction, sharp corners and all: a smooth result may trail it
             by a little and still fit (`START_TOLERANCE`).
@@ -132,6 +163,7 @@ class Evidence:
     appearance: tuple | None = None
     photos: np.ndarray | None = None
     carved_start: bool = False
+    consistency: tuple | None = None
 
 
 #: How far (mean silhouette IoU) a result may trail its start before the verdict fails: a
@@ -190,4 +222,12 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
         if odd:
             warn.append(f"photo views {odd} fit far worse than the rest (error {', '.join(f'{perr[i]:.3f}' for i in odd)}"
                         f" against a median of {med:.3f}): exposure or lighting changed between views?")
-    return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr)
+    pcon = None
+    if e.consistency is not None:
+        pcon = consistency_residuals(result, *e.consistency, sigma=sigma)
+        blank = [i for i, r in enumerate(pcon) if not np.isfinite(r)]
+        if blank:
+            warn.append(f"photo-consistency had nothing to work with in {len(blank)} of {len(pcon)} views (no texture "
+                        f"or no neighbour 5-60 degrees away): views {blank[:10]}{' ...' if len(blank) > 10 else ''}; "
+                        "their inside is shaped by the silhouettes and the shading alone")
+    return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr, pcon)

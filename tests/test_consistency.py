@@ -1,0 +1,137 @@
+"""Photo-consistency (jaxgenus.optim._consistency) against photos ray cast by trimesh, not by our renderer."""
+
+import numpy as np
+import pytest
+
+import jax
+import jax.numpy as jnp
+
+import jaxgenus as jg
+from jaxgenus.optim import consistency_windows, optimize_block, init_optimizer_state, photo_consistency, view_neighbours
+from _meshes import torus, torus_trimesh
+from _raycast import raycast_lambert
+
+LIGHT = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
+
+
+def cells(p):
+    """A high-frequency albedo: 3D cells of 0.1 with hashed colours."""
+    c = np.floor(np.asarray(p, np.float64) / 0.1).astype(np.int64)
+    h = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)
+    return np.stack([0.1 + 0.8 * (((h * (2 * k + 1) * 2654435761) >> 11) % 256) / 255.0 for k in range(3)], 1)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    tm = torus_trimesh(1.0, 0.35, 64, 32)
+    cams = jg.sphere_cameras(24, radius=3.0, fov_deg=40.0, resolution=96)
+    photos = np.asarray(raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.25, albedo=cells), np.float32)
+    photos[..., :3] *= photos[..., 3:4]  # premultiplied, as the pipeline fits them
+    return cams, jnp.asarray(photos), view_neighbours(cams)
+
+
+def _loss(mesh, cams, photos, table, gain=1.0):
+    nb = jnp.asarray(table[:, 0])
+    r = jg.render(mesh, cams, channels=("alpha", "depth"))
+    nd = jg.render(mesh, cams[nb], channels=("depth", "alpha"))
+    return photo_consistency(r[..., 1], r[..., 0], cams, photos * jnp.asarray([gain, gain, gain, 1.0]), cams[nb],
+                             photos[nb], nd)
+
+
+def test_neighbours_are_nearby_views_not_itself(scene):
+    cams, _, table = scene
+    assert table.shape == (24, 4) and table.dtype == np.int32
+    d = np.array(cams.centers)
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    for i, row in enumerate(table):
+        angles = np.degrees(np.arccos(np.clip(d[row] @ d[i], -1, 1)))
+        assert np.all(row != i) and np.all((angles >= 5) & (angles <= 60))
+    lone = jg.Cameras(cams.rotation[:1], cams.translation[:1], cams.focal[:1], cams.principal_point[:1], 96, 96)
+    assert view_neighbours(lone).tolist() == [[0, 0, 0, 0]]  # no neighbour: paired with itself (no signal)
+
+
+def test_minimum_at_the_true_surface_and_exposure_invariant(scene):
+    cams, photos, table = scene
+    losses = {s: float(_loss(torus(1.0, 0.35 * s, 64, 32), cams, photos, table)[0]) for s in (0.9, 0.97, 1.0, 1.03, 1.1)}
+    assert losses[1.0] < 0.85 * min(losses[0.97], losses[1.03]) and losses[1.0] < 0.5 * min(losses[0.9], losses[1.1]), losses
+    darker, count = _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, gain=0.6)  # one view's exposure changed
+    assert abs(float(darker) - losses[1.0]) < 0.02 and float(count) > 100
+
+
+def test_gradient_matches_finite_differences_and_points_to_the_surface(scene):
+    cams, photos, table = scene
+    with jax.enable_x64(True):
+        m = torus(1.0, 0.35 * 1.04, 32, 16, dtype=jnp.float64)
+        c64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), cams)
+        p64, nb = jnp.asarray(photos, jnp.float64), jnp.asarray(table[:, 0])
+        nd = jax.lax.stop_gradient(jg.render(m, c64[nb], channels=("depth", "alpha")))
+
+        def f(v):
+            mm = jg.Mesh(vertices=v, faces=m.faces, n_vertices=m.n_vertices, n_faces=m.n_faces)
+            r = jg.render(mm, c64, channels=("alpha", "depth"))
+            return photo_consistency(r[..., 1], r[..., 0], c64, p64, c64[nb], p64[nb], nd)[0]
+
+        g = jax.grad(f)(m.vertices)
+        assert bool(jnp.all(jnp.isfinite(g)))
+        rng = np.random.default_rng(0)
+        for _ in range(3):  # directional derivatives along smooth random fields
+            d = jnp.asarray(np.sin(m.vertices @ rng.normal(size=(3, 3))) * 1e-3)
+            h = 1e-3
+            fd = (f(m.vertices + h * d) - f(m.vertices - h * d)) / (2 * h)
+            an = jnp.sum(g * d)
+            assert abs(float(fd - an)) <= 0.1 * abs(float(fd)) + 1e-6, (float(fd), float(an))
+        # too fat: descending moves the vertices inwards (towards the tube's core circle)
+        v = np.asarray(m.vertices)
+        radial = v.copy()
+        radial[:, 2] = 0.0  # the torus is about z
+        core = radial / np.linalg.norm(radial, axis=1, keepdims=True)
+        outward = v - core
+        outward /= np.linalg.norm(outward, axis=1, keepdims=True)
+        assert float(np.sum(np.asarray(g) * outward)) > 0
+
+
+def test_nothing_to_work_with_gives_zero_not_nan(scene):
+    cams, photos, table = scene
+    flat = photos.at[..., :3].set(0.5 * photos[..., 3:4])  # textureless
+    loss, count = _loss(torus(1.0, 0.35, 64, 32), cams, flat, table)
+    assert float(loss) == 0.0 and float(count) == 0.0
+    empty = photos.at[..., 3].set(0.0)  # no mask anywhere
+    loss, count = _loss(torus(1.0, 0.35, 64, 32), cams, empty, table)
+    assert float(loss) == 0.0 and float(count) == 0.0
+    far = torus(1.0, 0.35, 64, 32)
+    far = jg.Mesh(vertices=far.vertices + jnp.asarray([50.0, 0.0, 0.0]), faces=far.faces, n_vertices=far.n_vertices,
+                  n_faces=far.n_faces)  # out of every view
+    assert np.isfinite(float(_loss(far, cams, photos, table)[0]))
+
+
+def test_windows_and_block_with_neighbours(scene):
+    cams, photos, table = scene
+    m = torus(1.0, 0.36, 48, 24)
+    nb = jnp.asarray(table[:, 0])
+    r = jg.render(m, cams, channels=("alpha", "depth"))
+    nd = jg.render(m, cams[nb], channels=("depth", "alpha"))
+    ncc, w = consistency_windows(r[..., 1], r[..., 0], cams, photos, cams[nb], photos[nb], nd)
+    assert ncc.shape == w.shape and ncc.shape[0] == 24
+    assert bool(jnp.all(jnp.abs(jnp.where(w > 0, ncc, 0.0)) <= 1.0 + 1e-4))
+    state = init_optimizer_state(m, jax.random.key(0), albedo=0.5)
+    opts = jg.OptimizeOptions(weights=jg.LossWeights(consistency=0.5))
+    state, rec = optimize_block(state, cams, photos, n_steps=3, options=opts, neighbours=table)
+    assert np.all(np.asarray(rec["consistency"]) > 0) and np.all(np.asarray(rec["status"]) == 0)
+    with pytest.raises(ValueError, match="neighbours"):
+        optimize_block(state, cams, photos, n_steps=1, options=opts, neighbours=table[:3])
+    with pytest.raises(ValueError, match="neighbours"):
+        optimize_block(state, cams, photos, n_steps=1, options=opts, neighbours=table + 20)
+
+
+def test_reconstruct_with_photo_consistency_reports_residuals(scene):
+    cams, photos, _ = scene
+    straight = np.asarray(photos).copy()
+    straight[..., :3] = np.where(straight[..., 3:] > 0, straight[..., :3] / np.maximum(straight[..., 3:], 1e-6), 0.0)
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=15, consistency=1.0)
+    rec = jg.reconstruct(straight, cams, 1, targets="photo", options=opts, key=jax.random.key(0))
+    res = np.asarray(rec.history["photo_consistency"], np.float64)
+    assert res.shape == (24,) and np.any(np.isfinite(res)) and np.all(res[np.isfinite(res)] <= 1.0)
+    assert np.any(np.asarray(rec.history["consistency"]) > 0)
+    off = jg.reconstruct(straight, cams, 1, targets="photo", options=opts.updated(consistency=0.0),
+                         key=jax.random.key(0))
+    assert off.history["photo_consistency"] is None and np.all(np.asarray(off.history["consistency"]) == 0)
