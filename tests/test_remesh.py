@@ -18,6 +18,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import jaxgenus as jg
+from _meshes import torus
 from jaxgenus._ffi import native
 from conftest import shared_mesh_table, shared_meshes_dir
 
@@ -331,3 +332,19 @@ def test_native_core_under_sanitizers(tmp_path):
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     assert "OK (0 failures)" in res.stdout
     assert "test_raster: all passed" in res.stdout
+
+
+def test_host_callback_path_matches_the_direct_ffi_call(monkeypatch):
+    """Off CPU (a GPU program) the remesher and the topology check run through a host callback
+    (`jaxgenus._ffi.host_ffi_call`); forced here on CPU, it gives the direct call's result."""
+    mesh = torus(1.0, 0.3, 24, 12, capacity=(2048, 4096))
+    opts = jg.RemeshOptions(iterations=2, target_edge_length=0.15)
+    direct = jax.jit(lambda m: jg.geometry.remesh_in_jit(m, opts))(mesh)
+    report = jg.geometry.mesh_report(mesh)
+    monkeypatch.setattr(jax.lax, "platform_dependent", lambda *args, cpu, default: default(*args))
+    hosted = jax.jit(lambda m: jg.geometry.remesh_in_jit(m, opts))(mesh)
+    hosted_report = jax.jit(jg.geometry.mesh_report)(mesh)
+    assert int(hosted[0].n_faces) == int(direct[0].n_faces) > 0
+    assert bool(jnp.all(hosted[0].faces == direct[0].faces)) and bool(jnp.all(hosted[0].vertices == direct[0].vertices))
+    assert int(hosted[2].status) == int(direct[2].status) == 0
+    assert int(hosted_report.n_faces) == int(report.n_faces) and int(hosted_report.euler_characteristic) == int(report.euler_characteristic) == 0

@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from jaxgenus._ffi import native
+from jaxgenus._ffi import host_ffi_call, native
 from jaxgenus.geometry._mesh import Mesh, capacity_bucket
 
 __all__ = ["RemeshOptions", "RemeshInfo", "RemeshStatus", "remesh", "remesh_in_jit"]
@@ -257,7 +257,8 @@ def remesh_in_jit(
     options: RemeshOptions | None = None,
     attributes: Float[Array, "V k"] | None = None,
 ) -> tuple[Mesh, Float[Array, "V k"] | None, RemeshInfo]:
-    """Remesh a capacity mesh through the XLA FFI (CPU); works inside `jit` and `lax.scan`.
+    """Remesh a capacity mesh through the XLA FFI (on the host: from a GPU program through a host
+    callback, `jaxgenus._ffi.host_ffi_call`); works inside `jit` and `lax.scan`.
 
     The output keeps the input's capacities; the sizing field is scaled up to fit
     them (`max_faces` defaults to the face capacity). Not differentiable: the
@@ -287,7 +288,7 @@ def remesh_in_jit(
     target = jnp.asarray(0.0 if target is None else target, jnp.float32)
     budget = fcap if options.max_faces is None else min(int(options.max_faces), fcap)
     sg = jax.lax.stop_gradient
-    v, f, a, info = jax.ffi.ffi_call(
+    v, f, a, info = host_ffi_call(
         "jaxgenus_remesh",
         (
             jax.ShapeDtypeStruct((vcap, 3), jnp.float32),
@@ -295,8 +296,6 @@ def remesh_in_jit(
             jax.ShapeDtypeStruct(attr.shape, jnp.float32),
             jax.ShapeDtypeStruct((native.REMESH_INFO_SIZE,), jnp.int32),
         ),
-        vmap_method="sequential",
-    )(
         sg(mesh.vertices.astype(jnp.float32)),
         sg(mesh.faces.astype(jnp.int32)),
         sg(jnp.stack([mesh.n_vertices, mesh.n_faces]).astype(jnp.int32)),

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Int
 
-from jaxgenus._ffi import native
+from jaxgenus._ffi import host_ffi_call, native
 from jaxgenus.geometry._mesh import Mesh
 
 __all__ = [
@@ -86,14 +86,13 @@ def mesh_report(mesh: Mesh) -> MeshReport:
     faces = jax.lax.stop_gradient(jnp.asarray(mesh.faces, jnp.int32))
     counts = jnp.stack([mesh.n_vertices, mesh.n_faces]).astype(jnp.int32)
     fcap = faces.shape[0]
-    report, comp = jax.ffi.ffi_call(
+    report, comp = host_ffi_call(
         "jaxgenus_mesh_check",
         (
             jax.ShapeDtypeStruct((native.REPORT_SIZE,), jnp.int32),
             jax.ShapeDtypeStruct((fcap,), jnp.int32),
         ),
-        vmap_method="sequential",
-    )(faces, jax.lax.stop_gradient(counts), vertex_capacity=np.int64(mesh.vertex_capacity))
+        faces, jax.lax.stop_gradient(counts), vertex_capacity=np.int64(mesh.vertex_capacity))
     fields = {name: report[i] for i, name in enumerate(_FIELDS)}
     return MeshReport(**fields, face_component=comp)
 
