@@ -92,6 +92,7 @@ from jaxgenus.optim import (
     UniformAdamState,
 )
 from jaxgenus.pipeline import (
+    genus_estimate,
     GenusEstimate,
     HandleRecord,
     builtin_scene,
@@ -134,6 +135,7 @@ __all__ = [
     "face_normals",
     "from_differential",
     "genus",
+    "genus_estimate",
     "genus_primitive",
     "GenusEstimate",
     "GradientTransformation",

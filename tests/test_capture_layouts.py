@@ -8,7 +8,7 @@ import pytest
 from PIL import Image
 
 import jaxgenus as jg
-from jaxgenus.pipeline._setup import downsampled
+from jaxgenus.pipeline._setup import downsampled, hull_factor, prepare
 from jaxgenus.pipeline._verdict import Evidence, judge
 
 RNG = np.random.default_rng(7)
@@ -133,6 +133,27 @@ def test_reconstruct_with_downsample_fits_the_copies():
     assert rec.history["resolution"][0]["size"] == [32, 32] and rec.options.downsample == 2
     assert any(line.startswith("downsample: fitting 64x64 images as 32x32 copies") for line in lines)
     assert len(rec.history["silhouette_iou"]) == 6 and rec.genus == 1
+
+
+def test_large_silhouettes_and_their_downsampled_copies_give_the_same_frame_and_hulls():
+    cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=512)
+    alpha = (np.asarray(jg.render_targets(jg.builtin_scene("torus"), cams))[..., 3] >= 0.5).astype(np.float32)
+    assert hull_factor(alpha, (48, 64)) == 2 and hull_factor(alpha[:, ::2, ::2], (48, 64)) == 1
+    opts = jg.ReconstructOptions(hull_resolutions=(64,))
+    full = prepare(alpha, cams, None, None, opts, lambda line: None)
+    half = prepare(*downsampled(alpha, cams, 2), None, None, opts, lambda line: None)
+    np.testing.assert_array_equal(full.frame.centre, half.frame.centre)
+    assert full.frame.scale == half.frame.scale and full.genus == half.genus == 1
+    np.testing.assert_allclose(full.pixel, 0.5 * half.pixel, rtol=1e-6)
+    a, b = full.hulls.get(64, 0)[0].to_numpy(), half.hulls.get(64, 0)[0].to_numpy()
+    np.testing.assert_array_equal(a[1], b[1])
+    np.testing.assert_allclose(a[0], b[0], atol=1e-6)
+    # where the face budget, not the pixels, limits the detail, the fits are the same to the bit
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=4, initial_faces=1000).updated(max_faces=1500)
+    m1 = jg.reconstruct(alpha, cams, 1, options=opts).mesh.to_numpy()
+    m2 = jg.reconstruct(alpha, cams, 1, options=opts.updated(downsample=2)).mesh.to_numpy()
+    np.testing.assert_array_equal(m1[1], m2[1])
+    np.testing.assert_array_equal(m1[0], m2[0])
 
 
 def test_reconstruct_of_a_capture_cut_by_the_frame_starts_close_and_says_so():

@@ -342,6 +342,32 @@ def test_genus_is_estimated_when_omitted():
     images = raycast(cams, gt, supersample=3)
     rec = jg.reconstruct(images, cams, options=jg.ReconstructOptions(n_cycles=1, steps_per_cycle=5))
     estimate = rec.history["genus_estimate"]
-    assert "evidence" in estimate
-    assert estimate["genus"] == 3, estimate
+    assert len(estimate["evidence"]) == 4 * len(rec.options.hull_resolutions)  # every grid x closings 0-3
+    assert estimate["genus"] == 3 and estimate["agreement"] >= 0.5 and 3 in estimate["plausible"], estimate
     assert rec.genus == 3
+
+
+def test_genus_estimate_alone_reads_the_silhouettes_only():
+    cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=64)
+    images = np.asarray(jg.render_targets(jg.builtin_scene("torus"), cams))
+    before = images.copy()
+    lines = []
+    estimate = jg.genus_estimate(images[..., 3], cams, log=lines.append)
+    assert estimate.genus == 1 and estimate.agreement == 1.0 and estimate.plausible == (1,)
+    assert any(line.startswith("genus: estimated 1") for line in lines)
+    np.testing.assert_array_equal(images, before)
+    with pytest.raises(ValueError, match="options"):
+        jg.genus_estimate(images, cams, options={})
+    with pytest.raises(ValueError, match="views"):
+        jg.genus_estimate(images[:5], cams)
+
+
+def test_persistent_genus_is_the_longest_run_over_closings():
+    from jaxgenus.pipeline._start import persistent_genus
+
+    assert persistent_genus([31, 6, 3, 3, 3]) == 3  # carving's spurious tunnels fill at 1-2 cells
+    assert persistent_genus([8, 0, 1, 0, 0]) == 0
+    assert persistent_genus([1, 0, 1, 0]) == 0  # no run longer than another: the lower genus
+    assert persistent_genus([2, 2, 0, 0, 0]) == 0 and persistent_genus([2, 2, 2, 0, 0]) == 2
+    assert persistent_genus([4, -1, 4, 3]) == 3  # a missing hull breaks a run
+    assert persistent_genus([-1, -1]) == -1

@@ -56,11 +56,16 @@ def pyramid_level(fit: np.ndarray, factor: int, *, normals: bool = True) -> np.n
     fit = np.asarray(fit)
     if factor == 1:
         return fit
+    normals = normals and fit.shape[-1] == 4
+    if not normals and factor & (factor - 1) == 0:  # halvings: 1/4 of 1/4 is then 1/16 to the bit
+        level = np.asarray(fit, np.float32)  # no copy of float32 targets: halving reads them
+        while factor > 1:
+            level, factor = _halved(level), factor // 2
+        return level
     n, h, w, c = fit.shape
     hh, ww = -(-h // factor), -(-w // factor)
     pad = np.zeros((n, hh * factor, ww * factor, c), np.float32)
     pad[:, :h, :w] = fit
-    normals = normals and c == 4
     if normals:
         normal = 2.0 * pad[..., :3] - 1.0
         pad[..., :3] = pad[..., 3:4] * normal
@@ -68,6 +73,14 @@ def pyramid_level(fit: np.ndarray, factor: int, *, normals: bool = True) -> np.n
     if normals:
         blocks[..., :3] = 0.5 * (blocks[..., :3] + 1.0)
     return blocks.astype(np.float32)
+
+
+def _halved(x: np.ndarray) -> np.ndarray:
+    """`(N, H, W, C)` averaged over 2x2 blocks, an odd last row/column padded with zeros."""
+    n, h, w, c = x.shape
+    if h % 2 or w % 2:
+        x = np.pad(x, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)))
+    return 0.25 * ((x[:, 0::2, 0::2] + x[:, 1::2, 0::2]) + (x[:, 0::2, 1::2] + x[:, 1::2, 1::2]))
 
 
 def target_boxes(targets: Float[Array, "N H W C"], margin: int) -> Int[Array, "N 4"]:

@@ -12,7 +12,7 @@ from jaxgenus.pipeline._history import (
     Reconstruction,
 )
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._reconstruct import reconstruct
+from jaxgenus.pipeline._reconstruct import genus_estimate, reconstruct
 from jaxgenus.pipeline._scenes import SCENES, builtin_scene, render_targets
 
 __all__ = [
@@ -26,6 +26,7 @@ __all__ = [
     "Reconstruction",
     "SCENES",
     "builtin_scene",
+    "genus_estimate",
     "handle_candidates",
     "normal_image_loss",
     "open_handles",

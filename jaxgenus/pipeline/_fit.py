@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from jaxgenus.geometry import Mesh, genus as mesh_genus, is_closed_manifold
-from jaxgenus.optim import init_optimizer_state, place
+from jaxgenus.optim import init_optimizer_state, place, pyramid_level
 from jaxgenus.pipeline._cycles import CycleRun, Level, run_one_jit, run_per_cycle
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -36,14 +36,17 @@ class FitIndex:
     fits: int = 1
 
 
-def _initial_state(start: Start, setup: Setup, options: ReconstructOptions, key):
-    """A fresh optimizer state at the start; photo targets: the median colour of the photos' fully
-    covered pixels as albedo, uniform light."""
+def _initial_state(start: Start, setup: Setup, options: ReconstructOptions, key, factor: int):
+    """A fresh optimizer state at the start; photo targets: the median colour of the fully covered
+    pixels of the photos at the first level fitted (1/`factor`: the same whatever size the photos
+    came at) as albedo, uniform light."""
     tg = setup.targets
     if tg.kind != "photo":
         return init_optimizer_state(start.mesh, key)
-    inside = tg.alpha >= 0.99
-    rgb = tg.fit[..., :3][inside] if inside.any() else tg.fit[..., :3][tg.alpha >= 0.5]
+    level = pyramid_level(tg.fit, factor, normals=False)
+    alpha = level[..., 3]
+    inside = alpha >= 0.99
+    rgb = level[..., :3][inside] if inside.any() else level[..., :3][alpha >= 0.5]
     albedo = np.maximum(np.median(rgb, axis=0), 0.02).astype(np.float32)
     return init_optimizer_state(start.mesh, key, albedo=albedo,
                                 lighting=np.zeros(LIGHTING_SHAPES[options.lighting], np.float32))
@@ -60,7 +63,7 @@ def _estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
     if estimate is None or estimate.agreement >= 0.5:
         return []
     return [f"the genus {estimate.genus} was estimated at a low agreement ({estimate.agreement:.0%} of the "
-            f"visual hulls: {[e.genus for e in estimate.evidence]}): give the genus if you know it"]
+            f"visual hulls' grids; plausible: {list(estimate.plausible)}): give the genus if you know it"]
 
 
 def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
@@ -104,7 +107,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     user_callback = None if callback is None else (
         lambda row, m: callback(dataclasses.replace(row, **where), frame.mesh_to_world(m)))
     say(schedule_line(options, setup, levels))
-    state = _initial_state(start, setup, options, key)
+    state = _initial_state(start, setup, options, key, levels[0].factor)
     if levels[0].valid is not None:  # views split over devices: the state is replicated on them
         state = place(state, levels[0].valid.sharding.mesh, split=False)
     if options.one_jit:

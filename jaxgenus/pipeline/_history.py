@@ -72,14 +72,16 @@ class GenusEstimate(_Readable):
     """The genus a run estimated from its silhouettes.
 
     Attributes:
-        genus: the estimate (the most frequent genus of the hulls; ties: the lower).
-        agreement: the share of the hulls that have it, in [0, 1].
-        evidence: one `GenusEvidence` per hull built.
+        genus: the estimate (the most frequent of the grids' persistent genera; ties: the lower).
+        agreement: the share of the grids that have it, in [0, 1].
+        evidence: one `GenusEvidence` per hull built (every grid and closing).
+        plausible: every genus some grid has (one value when they all agree).
     """
 
     genus: int
     agreement: float
     evidence: tuple[GenusEvidence, ...]
+    plausible: tuple[int, ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

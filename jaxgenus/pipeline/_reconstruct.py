@@ -27,13 +27,13 @@ import numpy as np
 
 from jaxgenus.geometry import Cameras
 from jaxgenus.pipeline._fit import FitIndex, fit
-from jaxgenus.pipeline._history import History, Reconstruction
+from jaxgenus.pipeline._history import GenusEstimate, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._setup import Setup, downsampled, prepare
+from jaxgenus.pipeline._setup import Setup, prepare
 from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._start_stage import first_start, refit_start
 
-__all__ = ["reconstruct"]
+__all__ = ["genus_estimate", "reconstruct"]
 
 # A refit that lowers the mean normal error by less than this share of it predicts a next
 # one that gains nothing (docs/reconstruction.md, "Default refits"). Default refits only.
@@ -45,6 +45,17 @@ def _check_arguments(genus, options):
         raise ValueError(f"genus must be an int >= 0 or None (estimate it), got {genus!r}")
     if not isinstance(options, ReconstructOptions):
         raise ValueError(f"options must be a ReconstructOptions, got {type(options).__name__}")
+
+
+def genus_estimate(images, cams: Cameras, *, targets: str | None = None,
+                   options: ReconstructOptions = ReconstructOptions(), log=None) -> GenusEstimate:
+    """The genus the silhouettes of `images` show (what `reconstruct(images, cams)` estimates
+    when no genus is given): a `GenusEstimate` with its `agreement` over the visual hull's grids
+    and the `plausible` genera. Holes no silhouette shows are not counted. Arguments as in
+    `reconstruct`; host-side, no optimization."""
+    if not isinstance(options, ReconstructOptions):
+        raise ValueError(f"options must be a ReconstructOptions, got {type(options).__name__}")
+    return prepare(images, cams, None, targets, options, log if log is not None else (lambda line: None)).estimate
 
 
 def reconstruct(
@@ -90,18 +101,13 @@ def reconstruct(
     say = log if log is not None else (lambda line: None)
     key = jax.random.key(0) if key is None else key
     _check_arguments(genus, options)
-    if options.downsample > 1:
-        h, w = cams.height, cams.width
-        images, cams = downsampled(images, cams, options.downsample, targets)
-        say(f"downsample: fitting {w}x{h} images as {cams.width}x{cams.height} copies (1/{options.downsample}), "
-            "cameras scaled to match")
     setup = prepare(images, cams, genus, targets, options, say)
-    n_refits = options.refit_count(cams.height, cams.width, setup.targets.kind)
+    n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
-                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, downsample=1),
+                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0),
                            key=key)
 
     start = first_start(setup, fit_genus, say)

@@ -22,9 +22,9 @@ from jaxgenus.geometry import Cameras
 from jaxgenus.optim import pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._start import HullTable, estimate_genus
+from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
 
-__all__ = ["Setup", "downsampled", "prepare"]
+__all__ = ["Setup", "downsampled", "hull_factor", "prepare"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -32,9 +32,11 @@ class Setup:
     """What `prepare` found: the stages after it read the inputs only through this.
 
     Attributes:
-        images: the caller's images (read, never modified).
+        images: the images fitted: the caller's (read, never modified), or their copies
+            downsampled by `options.downsample`.
         targets: the validated `Targets`.
-        world_cams: the caller's cameras; cams: the same in the canonical frame.
+        world_cams: the cameras of `images` (the caller's, scaled with a downsample); cams: the
+            same in the canonical frame.
         frame: the canonical frame (`x_world = scale * x + centre`).
         bounds: `(lo, hi)` of the visual hull in the canonical frame.
         pixel: world size (canonical units) of one pixel at the hull's centre.
@@ -79,20 +81,23 @@ def _cut_note(alpha, say: Callable[[str], None]) -> tuple[str, ...]:
 
 def _estimated(hulls: HullTable, options: ReconstructOptions, say: Callable[[str], None]) -> GenusEstimate:
     estimate = estimate_genus(hulls, options.hull_resolutions)
-    say(f"genus: estimated {estimate.genus} from the visual hull, {estimate.agreement:.0%} of the hulls agree "
-        f"({', '.join(str(e.genus) for e in estimate.evidence)} on grids {options.hull_resolutions} x closing 0, 1)"
-        + ("; low agreement: give the genus if you know it" if estimate.agreement < 0.5 else ""))
+    grids = "; ".join(f"{r}: {', '.join(str(e.genus) for e in estimate.evidence if e.resolution == r)}"
+                      for r in options.hull_resolutions)
+    say(f"genus: estimated {estimate.genus} from the visual hull, {estimate.agreement:.0%} of the grids agree "
+        f"(genus per closing of 0-{CLOSINGS[-1]} cells on grid {grids})"
+        + (f"; low agreement, plausible: {list(estimate.plausible)}: give the genus if you know it"
+           if estimate.agreement < 0.5 else ""))
     return estimate
 
 
-def _thin(tg: Targets, cams: Cameras, hulls: HullTable, pixel: float, options: ReconstructOptions, say) -> tuple[float | None, bool]:
+def _thin(cams: Cameras, hulls: HullTable, pixel: float, options: ReconstructOptions, say) -> tuple[float | None, bool]:
     """The hull's thickness in image pixels, and whether it is under `fine_below` pixels of
     the level the first cycles fit (a structure thin there needs fine() even when the
     images themselves resolve it)."""
     if options.fine_below <= 0:
         return None, False
     hull = hulls.get(options.hull_resolutions[0], 0)[0]
-    thickness = math.inf if hull is None else hull_thickness(tg.alpha, cams, options.hull_resolutions[0], pixel, hull=hull)
+    thickness = math.inf if hull is None else hull_thickness(None, cams, options.hull_resolutions[0], pixel, hull=hull)
     coarse = resolution_factors(cams.height, cams.width, 1, options.coarse_resolution, 0)[0]
     if thickness / coarse >= options.fine_below:
         return thickness, False
@@ -102,31 +107,69 @@ def _thin(tg: Targets, cams: Cameras, hulls: HullTable, pixel: float, options: R
     return thickness, True
 
 
+def hull_factor(alpha, resolutions: tuple[int, ...]) -> int:
+    """The pyramid factor the silhouettes are read at for the frame, the bounds and the visual hulls:
+    the largest power of two that leaves the silhouettes' median extent (the longer side of their
+    bounding boxes) at least 2 pixels per cell of the finest hull grid. Finer pixels than that add
+    nothing a grid point can sample, and the same capture given at its own size or downsampled then
+    reads the same silhouettes (same frame, same start). 1 for small images."""
+    a = np.asarray(alpha) >= 0.5
+    rows, cols = a.any(axis=2), a.any(axis=1)
+    extent = [max(np.ptp(np.flatnonzero(r)), np.ptp(np.flatnonzero(c))) + 1
+              for r, c in zip(rows, cols) if r.any()]
+    if not extent:
+        return 1
+    ratio = float(np.median(extent)) / (2.0 * max(resolutions))
+    return 2 ** int(math.floor(math.log2(ratio))) if ratio >= 2 else 1
+
+
+def _straight(tg: Targets, fit: np.ndarray) -> np.ndarray:
+    """Images as `reconstruct` takes them from a `fit` array of `tg`'s kind (photos: straight colours)."""
+    if tg.kind != "photo":
+        return np.ascontiguousarray(fit, np.float32)
+    a = fit[..., 3:]
+    return np.concatenate([np.where(a > 0, fit[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1).astype(np.float32)
+
+
+def _downsampled_targets(tg: Targets, factor: int) -> tuple[np.ndarray, Targets]:
+    """The images and `Targets` of `tg` area-averaged over `factor x factor` blocks. The targets are
+    the pyramid level itself (not re-read from the straight images), so the levels a run fits below
+    them are those of the full-size run to the bit."""
+    fit = pyramid_level(tg.fit, factor, normals=tg.kind == "normals")
+    normals = None if tg.normals is None else fit[..., :3] * 2.0 - 1.0
+    return _straight(tg, fit), Targets(tg.kind, fit[..., -1], normals, fit, tg.inferred)
+
+
 def downsampled(images, cams: Cameras, factor: int, targets: str | None = None) -> tuple[np.ndarray, Cameras]:
     """`images` area-averaged over `factor x factor` blocks (as `reconstruct` takes them: silhouettes,
     RGBA normal maps or straight RGBA photos) and the cameras of those copies."""
-    tg = check_targets(images, cams, targets)
-    level = pyramid_level(tg.fit, factor, normals=tg.kind == "normals")
-    if tg.kind == "photo":  # the fit is premultiplied: straight colours again
-        a = level[..., 3:]
-        level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
-    return np.ascontiguousarray(level, np.float32), scaled_cameras(cams, factor)
+    small, _ = _downsampled_targets(check_targets(images, cams, targets), factor)
+    return small, scaled_cameras(cams, factor)
 
 
 def prepare(images, cams: Cameras, genus: int | None, targets: str | None, options: ReconstructOptions,
             say: Callable[[str], None]) -> Setup:
     """The `Setup` of a run (see the module doc); `say(line)` reports each finding."""
     tg = check_targets(images, cams, targets)
-    frame = scene_frame(tg.alpha, cams)
+    if options.downsample > 1:
+        big, cams = cams, scaled_cameras(cams, options.downsample)
+        images, tg = _downsampled_targets(tg, options.downsample)
+        say(f"downsample: fitting {big.width}x{big.height} images as {cams.width}x{cams.height} copies "
+            f"(1/{options.downsample}), cameras scaled to match")
+    factor = hull_factor(tg.alpha, (48,) + tuple(options.hull_resolutions))
+    alpha = pyramid_level(tg.alpha[..., None], factor)[..., 0]
+    frame = scene_frame(alpha, scaled_cameras(cams, factor))
     canonical = frame.cameras_to_canonical(cams)
     say(f"frame: object centre {np.round(frame.centre, 6).tolist()}, radius {frame.scale:.6g} (user units); "
-        f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}")
-    lo, hi = visual_hull_bounds(tg.alpha, canonical)
+        f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}"
+        + (f"; silhouettes read at 1/{factor} for the frame and the visual hulls" if factor > 1 else ""))
+    hull_cams = scaled_cameras(canonical, factor)
+    lo, hi = visual_hull_bounds(alpha, hull_cams)
     pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
-    hulls = HullTable(tg.alpha, canonical, (lo, hi))
-    notes = _cut_note(tg.alpha, say)
+    hulls = HullTable(alpha, hull_cams, (lo, hi))
+    notes = _cut_note(alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
-    thickness, fine = _thin(tg, canonical, hulls, pixel, options, say)
+    thickness, fine = _thin(canonical, hulls, pixel, options, say)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options.fine() if fine else options,
