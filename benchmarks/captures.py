@@ -15,14 +15,18 @@ it, the result's faces and exit code, and the held-out re-projection PSNR
 (`jaxgenus.metrics.reprojection_psnr`: the training photos at full size predicted onto the
 held-out views through the mesh, object pixels, evaluated at 1/`--eval-downsample`).
 Writes OUT/captures.{json,md,png} (time against pixels, log-log, with the 2x-per-4x line).
+`--processes P`: P processes joined by `jax.distributed` on this host (one CPU device each, each
+reading only its views); the peak memory is the largest process's.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
 import shlex
+import socket
 import subprocess
 import sys
 import time
@@ -90,22 +94,36 @@ def training_photos(out: Path):
     return loaded.images[..., :3], cams
 
 
-def run_one(out: Path, genus: str, downsample: int, cli_args: list[str], tag: str, masks_only: bool) -> dict:
+def run_one(out: Path, genus: str, downsample: int, cli_args: list[str], tag: str, masks_only: bool,
+            processes: int = 1) -> dict:
+    """One CLI run (`processes` > 1: that many processes joined on this host, one CPU device each,
+    each reading its own views; the peak RSS is the largest process's)."""
     mesh = out / f"{tag}.obj"
     images = ["--images", str(out / "train" / "mask")] if masks_only else [
         "--images", str(out / "train" / "image"), "--masks", str(out / "train" / "mask")]
     cmd = [sys.executable, "-c", _RSS, sys.executable, "-m", "jaxgenus", "reconstruct", *images,
            "--cameras", str(out / "train" / "cameras_sphere.npz"), "--genus", genus,
            "--downsample", str(downsample), "--out", str(mesh), *cli_args]
+    env = None
+    if processes > 1:
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        cmds = [cmd + ["--coordinator", f"127.0.0.1:{port}", "--num-processes", str(processes), "--process-id",
+                       str(i)] for i in range(processes)]
+        env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1", JAX_PLATFORMS="cpu")
+    else:
+        cmds = [cmd]
     t0 = time.perf_counter()
-    proc = subprocess.run(cmd, capture_output=True, text=True)
+    procs = [subprocess.Popen(c, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env) for c in cmds]
+    logs = [p.communicate()[0] for p in procs]
     wall = time.perf_counter() - t0
-    (out / f"{tag}.log").write_text(proc.stdout + proc.stderr)
-    rss = re.search(r"PEAK_RSS_KB (\d+)", proc.stdout)
-    eta, remaining = first_eta(proc.stdout, wall)
-    return dict(tag=tag, downsample=downsample, args=cli_args, exit=proc.returncode, seconds=wall,
-                peak_rss_gb=int(rss.group(1)) / 2**20 if rss else None, first_eta=eta, remaining=remaining,
-                mesh=str(mesh) if mesh.exists() else None)
+    (out / f"{tag}.log").write_text("\n".join(logs))
+    rss = [int(m.group(1)) for log in logs for m in [re.search(r"PEAK_RSS_KB (\d+)", log)] if m]
+    eta, remaining = first_eta(logs[0], wall)
+    return dict(tag=tag, downsample=downsample, args=cli_args, exit=max(p.returncode for p in procs), seconds=wall,
+                peak_rss_gb=max(rss) / 2**20 if rss else None, first_eta=eta, remaining=remaining,
+                mesh=str(mesh) if mesh.exists() else None, processes=processes)
 
 
 def write_report(rows: list[dict], out: Path) -> None:
@@ -149,6 +167,8 @@ def main():
     ap.add_argument("--cli-args", default="", help="more CLI arguments for every run (quoted)")
     ap.add_argument("--eval-downsample", type=int, default=2)
     ap.add_argument("--masks-only", action="store_true", help="fit the masks alone (silhouettes), not the photos")
+    ap.add_argument("--processes", type=int, default=1,
+                    help="processes joined by jax.distributed on this host, one CPU device each")
     ap.add_argument("--out", type=Path, default=Path("captures_out"))
     ap.add_argument("--report-only", action="store_true")
     args = ap.parse_args()
@@ -164,9 +184,11 @@ def main():
         extra = shlex.split(args.cli_args)
         for ds in args.downsample:
             tag = ("masks-" if args.masks_only else "") + f"ds{ds}" + (
-                "-" + "-".join(a.strip("-") for a in extra) if extra else "")
-            row = run_one(args.out, args.genus, ds, extra, tag, args.masks_only)
-            row.update(args_key=("masks only " if args.masks_only else "") + " ".join(extra), size=f"{-(-cams.width // ds)}x{-(-cams.height // ds)}",
+                "-" + "-".join(a.strip("-") for a in extra) if extra else "") + (
+                f"-p{args.processes}" if args.processes > 1 else "")
+            row = run_one(args.out, args.genus, ds, extra, tag, args.masks_only, args.processes)
+            row.update(args_key=("masks only " if args.masks_only else "") + " ".join(extra)
+                       + (f" {args.processes} processes" if args.processes > 1 else ""), size=f"{-(-cams.width // ds)}x{-(-cams.height // ds)}",
                        pixels=-(-cams.width // ds) * -(-cams.height // ds), views=len(train), held=held)
             if row["mesh"]:
                 v, f = jg.load_mesh(row["mesh"]).to_numpy()

@@ -160,19 +160,25 @@ def _setting(item: str):
     return name.strip(), value
 
 
-def _captured(args, say):
-    """Images and cameras from files, paired; prints what was read and how it was paired."""
+def _captured(args, say, devices):
+    """Images and cameras from files, paired; prints what was read and how it was paired. With
+    processes joined, each reads only the views its devices render (`held_views`); returns
+    `(images, cams, targets, views)` (views: None when all were read)."""
+    import jax
+
     import jaxgenus as jg
 
+    share = jax.process_count() > 1
     loaded = jg.load_images(args.images, masks=args.masks, background=args.background, targets=args.targets,
-                            background_threshold=args.threshold)
+                            background_threshold=args.threshold,
+                            views=(lambda n: jg.optim.held_views(n, devices)) if share else None)
     size = loaded.images.shape[1:3]
     cams, cam_names = jg.load_cameras(args.cameras, image_size=tuple(int(x) for x in size))
-    order, how = jg.pair_images(loaded.names, cam_names, n_images=len(loaded.images), n_cameras=len(cams))
+    order, how = jg.pair_images(loaded.names, cam_names, n_images=loaded.count, n_cameras=len(cams))
     cams = cams[np.asarray(order)]
-    say(f"images: {loaded.source}; {len(loaded.images)} views of {size[1]}x{size[0]} px, targets {loaded.targets}")
+    say(f"images: {loaded.source}; {loaded.count} views of {size[1]}x{size[0]} px, targets {loaded.targets}")
     say(f"cameras: {args.cameras}; {how}")
-    return loaded.images, cams, loaded.targets
+    return loaded.images, cams, loaded.targets, loaded.views
 
 
 def _check_outputs(args):
@@ -212,7 +218,7 @@ def _reconstruct(args) -> int:
     _check_outputs(args)
     say = _clock(time.perf_counter())
     opts = _options(args)
-    gt, targets = None, args.targets
+    gt, targets, views = None, args.targets, None
     if args.mesh:
         gt = jg.load_mesh(args.mesh)
         v, f = gt.to_numpy()
@@ -222,13 +228,14 @@ def _reconstruct(args) -> int:
         images = jg.render_targets(gt, cams)
         say(f"targets: {args.views} normal maps of {args.mesh} at {args.res}px (synthetic)")
     elif args.images and args.cameras:
-        images, cams, targets = _captured(args, say)
+        images, cams, targets, views = _captured(args, say, opts.devices)
     else:
         raise _InputError("give --mesh GT.obj (synthetic targets) or --images PATH --cameras FILE")
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
         f"{opts.steps_per_cycle} steps, up to {opts.face_budget} faces")
-    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say)
+    rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say,
+                         views=views)
     _report(rec, gt)
     if jax.process_index() == 0:  # one mesh: the first process writes it
         _write(rec, args.out)
@@ -239,7 +246,8 @@ def _batch(args) -> int:
     from jaxgenus._batch import run_batch
 
     return run_batch(Path(args.captures), Path(args.out), list(args.rest), main,
-                     num_processes=args.num_processes, process_id=args.process_id)
+                     num_processes=args.num_processes, process_id=args.process_id, jobs=args.jobs,
+                     summary=not args.worker)
 
 
 def _demo(args) -> int:
@@ -267,6 +275,9 @@ def _add_batch_and_demo(sub) -> None:
     b.add_argument("--out", required=True, help="output folder: OUT/NAME/mesh.obj, OUT/summary.md")
     b.add_argument("--num-processes", type=int, default=1, metavar="N", help="N processes share the captures")
     b.add_argument("--process-id", type=int, default=0, metavar="I", help="this process takes every N-th from I")
+    b.add_argument("--jobs", type=int, default=1, metavar="K",
+                   help="K captures side by side, each in a worker process with its share of the GPUs")
+    b.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)  # a --jobs worker: no summary
     b.set_defaults(run=_batch)
     d = sub.add_parser("demo", help="reconstruct a built-in scene and print chamfer, IoU and genus")
     d.add_argument("--scene", default="three_tori", choices=["torus", "tilted_tori", "three_tori"])

@@ -9,6 +9,9 @@ Each is run as `jaxgenus reconstruct` with the options given after the folder, w
 broken capture is reported and the others go on; a rerun skips the captures that finished (a
 status with a mesh). With `--num-processes N --process-id I` (no coordinator needed), process I
 takes every N-th capture; within a process the views of a capture are split over its devices.
+With `--jobs K` a process runs K captures side by side instead, each in a worker process of its
+own with its own share of the GPUs (`CUDA_VISIBLE_DEVICES`: the GPUs split into K groups; on a
+CPU host the workers share the cores).
 `OUT/summary.md` and `OUT/summary.json` list every capture that has a status.
 """
 
@@ -17,7 +20,10 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import re
+import subprocess
+import sys
 import time
 from pathlib import Path
 from typing import Callable
@@ -106,13 +112,58 @@ def _summary(out: Path, names: list[str]) -> list[dict]:
     return rows
 
 
+def device_groups(jobs: int) -> list[str | None]:
+    """Per job, the GPUs it sees (a `CUDA_VISIBLE_DEVICES` value): the visible GPUs
+    (`CUDA_VISIBLE_DEVICES`, else those `nvidia-smi -L` lists) in `jobs` contiguous groups;
+    None for each job on a host without GPUs."""
+    listed = os.environ.get("CUDA_VISIBLE_DEVICES")
+    if listed is not None:
+        ids = [x.strip() for x in listed.split(",") if x.strip()]
+    else:
+        try:
+            found = subprocess.run(["nvidia-smi", "-L"], capture_output=True, text=True, timeout=60).stdout
+        except (OSError, subprocess.SubprocessError):
+            found = ""
+        ids = [str(i) for i, line in enumerate(ln for ln in found.splitlines() if ln.startswith("GPU "))]
+    if not ids:
+        return [None] * jobs
+    if jobs > len(ids):
+        raise ValueError(f"--jobs {jobs}: more jobs than the {len(ids)} GPUs; use at most one job per GPU")
+    cut = [round(j * len(ids) / jobs) for j in range(jobs + 1)]
+    return [",".join(ids[cut[j]:cut[j + 1]]) for j in range(jobs)]
+
+
+def _side_by_side(root: Path, out: Path, options: list[str], jobs: int, num_processes: int, process_id: int) -> int:
+    """`jobs` worker processes (`python -m jaxgenus batch --worker`), worker j taking every
+    (N * jobs)-th capture from I * jobs + j, each with its group of GPUs; 0 when all fitted."""
+    groups = device_groups(jobs)
+    workers = []
+    for j, group in enumerate(groups):
+        env = dict(os.environ) if group is None else dict(os.environ, CUDA_VISIBLE_DEVICES=group)
+        argv = [sys.executable, "-m", "jaxgenus", "batch", str(root), "--out", str(out), "--worker",
+                "--num-processes", str(num_processes * jobs), "--process-id", str(process_id * jobs + j), *options]
+        workers.append(subprocess.Popen(argv, env=env))
+    codes = [w.wait() for w in workers]
+    return 0 if all(c == 0 for c in codes) else 4 if all(c in (0, 4) for c in codes) else 1
+
+
 def run_batch(root: Path, out: Path, options: list[str], reconstruct: Callable[[list[str]], int], *,
-              num_processes: int = 1, process_id: int = 0) -> int:
+              num_processes: int = 1, process_id: int = 0, jobs: int = 1, summary: bool = True) -> int:
     """Reconstruct every capture of `root` into `out` (module doc); `reconstruct(argv)` runs one
-    `jaxgenus reconstruct`. Returns 0 when every capture of this process fitted, else 4."""
+    `jaxgenus reconstruct`; `jobs` captures at a time in worker processes (`summary`: False in a
+    worker, whose parent writes it). Returns 0 when every capture of this process fitted, else 4
+    (1 when a worker itself failed)."""
     if not (num_processes >= 1 and 0 <= process_id < num_processes):
         raise ValueError(f"--process-id must be in [0, {num_processes}), got {process_id}")
+    if not (isinstance(jobs, int) and jobs >= 1):
+        raise ValueError(f"--jobs must be an int >= 1, got {jobs!r}")
     folders = capture_folders(root)
+    if jobs > 1:
+        out.mkdir(parents=True, exist_ok=True)
+        code = _side_by_side(root, out, options, jobs, num_processes, process_id)
+        rows = _summary(out, [f.name for f in folders])
+        print(f"summary: {sum(r['exit'] == 0 for r in rows)} of {len(folders)} captures fitted; {out / 'summary.md'}")
+        return code
     out.mkdir(parents=True, exist_ok=True)
     failed = 0
     for folder in folders[process_id::num_processes]:
@@ -126,6 +177,7 @@ def run_batch(root: Path, out: Path, options: list[str], reconstruct: Callable[[
         print(f"{folder.name}: exit {status['exit']}, genus {status['genus']}, "
               f"{'ok' if status['ok'] else 'NOT OK'}, {status['seconds']} s"
               + (f" ({status['reason']})" if status["reason"] else ""), flush=True)
-    rows = _summary(out, [f.name for f in folders])
-    print(f"summary: {sum(r['exit'] == 0 for r in rows)} of {len(folders)} captures fitted; {out / 'summary.md'}")
+    if summary:
+        rows = _summary(out, [f.name for f in folders])
+        print(f"summary: {sum(r['exit'] == 0 for r in rows)} of {len(folders)} captures fitted; {out / 'summary.md'}")
     return 0 if failed == 0 else 4

@@ -46,3 +46,30 @@ def test_batch_writes_the_good_capture_and_reports_the_broken_one(tmp_path, caps
 def test_batch_refuses_a_folder_without_captures(tmp_path, capsys):
     assert main(["batch", str(tmp_path), "--out", str(tmp_path / "out")]) == 1
     assert "no capture subfolders" in capsys.readouterr().err
+
+
+def test_batch_jobs_run_captures_side_by_side(tmp_path, capsys):
+    """`--jobs 2`: two worker processes take a capture each; the parent writes one summary of both."""
+    root, out = tmp_path / "captures", tmp_path / "out"
+    _capture(root / "good", broken=False)
+    _capture(root / "broken", broken=True)
+    code = main(["batch", str(root), "--out", str(out), "--jobs", "2", "--genus", "1", "--cycles", "2",
+                 "--steps", "30"])
+    printed = capsys.readouterr().out
+    assert code == 4, printed
+    rows = {r["capture"]: r for r in json.loads((out / "summary.json").read_text())}
+    assert rows["good"]["exit"] == 0 and rows["good"]["genus"] == 1 and rows["broken"]["exit"] == 1, rows
+    assert "summary: 1 of 2 captures fitted" in printed
+
+
+def test_device_groups_split_the_visible_gpus(monkeypatch):
+    import pytest
+
+    from jaxgenus._batch import device_groups
+
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "0,1,2,3")
+    assert device_groups(2) == ["0,1", "2,3"] and device_groups(3) == ["0", "1,2", "3"]
+    with pytest.raises(ValueError, match="--jobs 5: more jobs than the 4 GPUs"):
+        device_groups(5)
+    monkeypatch.setenv("CUDA_VISIBLE_DEVICES", "")
+    assert device_groups(2) == [None, None]  # no GPU: the workers share the host

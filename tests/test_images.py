@@ -194,6 +194,34 @@ def test_jpeg_photos_paired_with_masks_by_stem(tmp_path):
     np.testing.assert_array_equal(listed.images, out.images)
 
 
+
+def test_some_views_read_with_their_own_masks(tmp_path):
+    """`views=` reads only the chosen photos and their masks (as a process sharing a capture does):
+    the same rows as a full read; `names` and `count` still cover all; bad indices are refused."""
+    photos, masks = tmp_path / "photos", tmp_path / "masks"
+    photos.mkdir()
+    masks.mkdir()
+    for i in range(5):
+        Image.fromarray(RNG.integers(0, 256, (24, 32, 3), dtype=np.uint8)).save(photos / f"{i:03d}.png")
+        Image.fromarray(np.where(disc(cx=6.0 + 4 * i), 255, 0).astype(np.uint8)).save(masks / f"{i:03d}.png")
+    every = load_images(photos, masks=masks)
+    assert every.views is None and every.count == 5
+    for views in ([1, 3], lambda n: np.arange(n)[n // 2:]):
+        some = load_images(photos, masks=masks, views=views)
+        chosen = [1, 3] if isinstance(views, list) else [2, 3, 4]
+        np.testing.assert_array_equal(some.images, every.images[chosen])
+        assert some.names == every.names and some.count == 5 and some.views.tolist() == chosen
+        assert f"{len(chosen)} of 5 views read here" in some.source
+    arr = np.stack([disc(cx=6.0 + 4 * i) for i in range(5)]).astype(np.float32)
+    np.save(tmp_path / "masks.npy", arr)
+    some = load_images(tmp_path / "masks.npy", views=[0, 4])
+    np.testing.assert_array_equal(some.images[..., 0], arr[[0, 4]])
+    assert some.count == 5 and some.names is None
+    for bad in ([3, 1], [5], [], [0.5]):
+        with pytest.raises(ValueError, match="^views: "):
+            load_images(photos, masks=masks, views=bad)
+
+
 def test_unpaired_photo_is_an_error_naming_it(tmp_path):
     (tmp_path / "m").mkdir()
     for n in ("a", "b", "c"):

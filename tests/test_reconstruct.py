@@ -39,6 +39,13 @@ def test_bad_inputs_are_named(torus_scene):
         jg.reconstruct(img, cams, 1.5)
     with pytest.raises(ValueError, match="views"):
         jg.reconstruct(img[:5], cams, 1)
+    n = len(cams)  # views= names the views images holds; one process must hold them all
+    with pytest.raises(ValueError, match=f"^views: one process must hold all {n} views"):
+        jg.reconstruct(img[:2], cams, 1, views=[0, 1])
+    with pytest.raises(ValueError, match="^views: expected increasing"):
+        jg.reconstruct(img[:2], cams, 1, views=[1, 0])
+    with pytest.raises(ValueError, match="^views: expected 2 view indices"):
+        jg.reconstruct(img[:2], cams, 1, views=[0, 1, 2])
     with pytest.raises(ValueError, match="adam_quantile"):
         jg.ReconstructOptions().updated(adam_quantile=0.0)
     with pytest.raises(ValueError, match="average"):

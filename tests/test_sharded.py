@@ -77,8 +77,12 @@ RECONSTRUCT = textwrap.dedent(
     cams = jg.sphere_cameras(10, resolution=48)  # 10 views on 4 devices: 3, 3, 2 + padding, 2 + padding
     truth = jg.builtin_scene("torus")
     targets = jg.render_targets(truth, cams)
-    rec = jg.reconstruct(targets, cams, 1, options=jg.ReconstructOptions(n_cycles=2, steps_per_cycle=40, devices=devices))
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=40, devices=devices)
+    rec = jg.reconstruct(targets, cams, 1, options=opts)
     cd = jg.metrics.chamfer_distance(rec.mesh, truth).l1
+    if devices == 4:  # the views named (as a process holding them passes them): laid out alike, the same mesh
+        named = jg.reconstruct(targets, cams, 1, options=opts, views=np.arange(10))
+        assert np.array_equal(np.asarray(named.mesh.vertices), np.asarray(rec.mesh.vertices))
     print("RESULT", rec.history["devices"], rec.genus, cd, rec.history["ok"], rec.history["resolution"][0]["views"])
     """
 )
@@ -109,7 +113,8 @@ def _free_port() -> int:
 
 def test_two_processes_reconstruct_one_capture(tmp_path):
     """Two CLI processes joined by jax.distributed (CPU collectives over gloo) split the views of one
-    capture: both exit 0, the first writes the one mesh, as good as a one-process run."""
+    capture: each reads only the views its device renders, both exit 0, the first writes the one
+    mesh, as good as a one-process run."""
     import json
 
     import numpy as np
@@ -142,8 +147,26 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, out[-2000:] + err[-3000:]
     assert "wrote" in outs[0][0] and "wrote" not in outs[1][0]  # one mesh, from process 0
+    for out, _ in outs:  # each process read only the 4 views its device renders
+        assert "4 of 8 views read here" in out and "this process holds 4 of 8 views" in out, out[:3000]
     history = json.loads((tmp_path / "two" / "mesh.json").read_text())
     assert history["devices"] == 2
     one = jg.metrics.chamfer_distance(jg.load_mesh(tmp_path / "one" / "mesh.obj"), truth).l1
     two = jg.metrics.chamfer_distance(jg.load_mesh(tmp_path / "two" / "mesh.obj"), truth).l1
     assert jg.genus(jg.load_mesh(tmp_path / "two" / "mesh.obj")) == 1 and two <= 1.15 * one, (one, two)
+
+
+def test_photo_consistency_on_several_devices_is_reported_not_dropped_silently():
+    import types
+
+    from jaxgenus.pipeline._fit import _device_warnings
+    from jaxgenus.pipeline._options import ReconstructOptions
+
+    opts = ReconstructOptions().updated(consistency=1.0)
+    photo = types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"))
+    split = [types.SimpleNamespace(valid=types.SimpleNamespace(sharding=types.SimpleNamespace(
+        mesh=types.SimpleNamespace(size=4))))]
+    (line,) = _device_warnings(photo, opts, split)
+    assert "not used" in line and "4 devices" in line and "--devices 1" in line
+    assert _device_warnings(photo, opts, [types.SimpleNamespace(valid=None)]) == []  # one device: it is used
+    assert _device_warnings(photo, ReconstructOptions(), split) == []  # not asked for

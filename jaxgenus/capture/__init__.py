@@ -8,10 +8,11 @@ from jaxgenus.capture._frame import SceneFrame, pixel_footprint, scene_frame
 from jaxgenus.capture._hull import HullOccupancy, cut_views, hull_occupancy, hull_thickness, largest_component, visual_hull, visual_hull_bounds
 from jaxgenus.capture._images import LoadedImages, load_images
 from jaxgenus.capture._pairing import pair_images
-from jaxgenus.capture._targets import Targets, check_targets
+from jaxgenus.capture._targets import TARGET_KINDS, Targets, check_targets
 
 __all__ = [
     "LoadedImages",
+    "TARGET_KINDS",
     "SceneFrame",
     "Targets",
     "check_targets",

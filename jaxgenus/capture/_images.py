@@ -42,12 +42,17 @@ class LoadedImages(NamedTuple):
         names: the images' file stems in reading order, or None for an array.
         targets: `"silhouette"`, `"normals"` (RGB = (n + 1) / 2 world normals) or `"photo"`.
         source: one line saying what was read and how the targets were chosen.
+        views: the indices (in reading order) of the images read when `load_images` was
+            asked for some (`views=`; `names` still lists all), else None.
+        count: how many images the source holds (all of them, also when only some were read).
     """
 
     images: Float[np.ndarray, "N H W C"]
     names: list[str] | None
     targets: str
     source: str
+    views: np.ndarray | None = None
+    count: int | None = None
 
 
 class _Picture(NamedTuple):
@@ -155,21 +160,35 @@ def _is_array(x) -> bool:
     return isinstance(x, np.ndarray) or (isinstance(x, (str, os.PathLike)) and os.fspath(x).lower().endswith(".npy"))
 
 
-def _array(arr, what: str) -> tuple[np.ndarray, str]:
-    """A `.npy` / array as a new float32 `(N, H, W, C)` array, and its description."""
+def _chosen(views, n: int) -> np.ndarray | None:
+    """`load_images`' `views` (a sequence, or a function of the image count) as checked indices."""
+    if views is None:
+        return None
+    idx = np.asarray(views(n) if callable(views) else views)
+    if idx.ndim != 1 or not len(idx) or not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"views: expected a non-empty list of image indices, got {idx.tolist()!r:.80}")
+    if idx.min() < 0 or idx.max() >= n or np.any(np.diff(idx) <= 0):
+        raise ValueError(f"views: expected increasing indices into the {n} images, got {idx.tolist()[:10]}")
+    return idx.astype(np.int64)
+
+
+def _array(arr, what: str, views=None) -> tuple[np.ndarray, str, np.ndarray | None, int]:
+    """A `.npy` / array as a new float32 `(N, H, W, C)` array (only the chosen `views`), its
+    description, the chosen indices and the count of all."""
     label = "an array" if isinstance(arr, np.ndarray) else os.fspath(arr)
     if not isinstance(arr, np.ndarray):
         if not os.path.isfile(label):
             raise ValueError(f"{what}: no such file: {label}")
         try:
-            arr = np.load(label, allow_pickle=False)
+            arr = np.load(label, allow_pickle=False, mmap_mode="r")
         except (OSError, ValueError) as err:
             raise ValueError(f"{what}: cannot read {label} as a .npy array ({err})") from None
     desc = f"{arr.dtype} array {tuple(arr.shape)} from {os.path.basename(label)}"
     arr = arr[..., None] if arr.ndim == 3 else arr
     if arr.ndim != 4 or arr.shape[-1] not in (1, 3, 4) or 0 in arr.shape:
         raise ValueError(f"{what}: expected an array of shape (N, H, W), (N, H, W, 1), (N, H, W, 3) or (N, H, W, 4), got {arr.shape}")
-    return _scale(arr, f"{what}: {label}"), desc
+    chosen = _chosen(views, len(arr))
+    return _scale(np.asarray(arr if chosen is None else arr[chosen]), f"{what}: {label}"), desc, chosen, len(arr)
 
 
 def _mask(pic: _Picture, what: str, check_grey: bool = True) -> np.ndarray:
@@ -245,10 +264,14 @@ def _pair_masks(photos: list[str], masks: list[str]) -> tuple[list[int], list[st
     return [found[i][0] for i in range(len(photos))], extra, by_number
 
 
-def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int]) -> tuple[np.ndarray, str]:
-    """`(N, H, W)` masks for N photos: paired by stem when the photos are files, else by order."""
+def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int],
+                views: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+    """`(N, H, W)` masks for N photos: paired by stem when the photos are files, else by order;
+    only those of the photos `views` (indices) when given."""
     if _is_array(masks):
-        arr, _ = _array(masks, "masks")
+        arr, _, _, _ = _array(masks, "masks", views)
+        if views is not None:
+            n = len(views)
         if arr.shape[-1] != 1 or arr.shape[:3] != (n,) + size:
             raise ValueError(f"masks: expected an array of shape ({n}, {size[0]}, {size[1]}[, 1]) for the images, got {arr.shape}")
         return arr[..., 0], f"{n} masks from an array, paired by order"
@@ -256,7 +279,7 @@ def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int]) 
     if photos is None and len(files) != n:
         raise ValueError(f"masks: {len(files)} mask files for an array of {n} images (they pair by sorted order)")
     index, extra, by_number = (list(range(n)), [], False) if photos is None else _pair_masks(photos, files)
-    pics = [_read(files[j], "masks") for j in index]
+    pics = [_read(files[index[i]], "masks") for i in (range(len(index)) if views is None else views)]
     _check_size(pics, size, "its image", "masks")
     how = "paired by order" if photos is None else "paired by number" if by_number else "paired by name"
     note = f"; {len(extra)} masks without photos ignored ({few(extra, 3)})" if extra else ""
@@ -305,7 +328,7 @@ def infer_targets(images) -> str:
 
 
 def load_images(path, *, masks=None, background: str | None = None, targets: str | None = None,
-                background_threshold: float = BACKGROUND_THRESHOLD) -> LoadedImages:
+                background_threshold: float = BACKGROUND_THRESHOLD, views=None) -> LoadedImages:
     """Read target images the way users have them.
 
     Args:
@@ -337,6 +360,9 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         targets: `"silhouette"`, `"normals"` or `"photo"`, checked against what was read (normals and
             photos need RGB); None infers it (`infer_targets`). `"silhouette"` keeps only the mask:
             images are then `(N, H, W, 1)`.
+        views: read only these images (increasing indices in reading order, or a function of the
+            image count giving them, e.g. `lambda n: jaxgenus.optim.held_views(n)` for the views
+            this process renders when processes share a capture) and their masks; None: all.
 
     Returns:
         `LoadedImages(images, names, targets, source)`; nothing passed in is modified or aliased.
@@ -353,7 +379,7 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
     derive = masks is not None or background is not None
 
     if _is_array(path):
-        arr, source = _array(path, "images")
+        arr, source, chosen, n_all = _array(path, "images", views)
         names = files = None
         first = "the array" if isinstance(path, np.ndarray) else os.fspath(path)
         pics = [_Picture(first, a, "array", False, False) for a in arr]
@@ -365,8 +391,9 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         for i, s in enumerate(names):
             if s in names[:i]:
                 raise ValueError(f"images: {files[names.index(s)]} and {files[i]} have the same name {s!r}; names must be unique")
-        pics = [_read(f, "images") for f in files]
-        first, source = files[0], ""
+        chosen, n_all = _chosen(views, len(files)), len(files)
+        pics = [_read(f, "images") for f in (files if chosen is None else [files[i] for i in chosen])]
+        first, source = pics[0].path, ""
         _check_size(pics[1:], pics[0].pixels.shape[:2], first, "images")
 
     grey = [p.pixels.shape[-1] in (1, 2) for p in pics]
@@ -384,7 +411,7 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
             noun = ("grayscale photos" if all(grey) else "photos") if derive else "RGBA files" if has_alpha else "RGB files"
             source = _describe(pics, noun)
         if masks is not None:
-            m, how = _load_masks(masks, files, len(rgb), rgb.shape[1:3])
+            m, how = _load_masks(masks, files, n_all, rgb.shape[1:3], chosen)
             source += f" + {how}" + (", replacing their alpha" if has_alpha else "")
         elif background is not None:
             if has_alpha:
@@ -409,5 +436,7 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         note = f"targets {targets} (given)"
         if targets == "silhouette" and images.shape[-1] == 4:
             images, note = np.ascontiguousarray(images[..., 3:]), note + ", RGB dropped"
-    return LoadedImages(images, names, targets, f"{source}; {note}")
+    if chosen is not None:
+        note += f"; {len(chosen)} of {n_all} views read here"
+    return LoadedImages(images, names, targets, f"{source}; {note}", chosen, n_all)
 

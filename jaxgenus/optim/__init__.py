@@ -24,7 +24,8 @@ from jaxgenus.optim._optimize import (
     optimize_steps,
 )
 from jaxgenus.optim._record import RECORD_KEYS, StepRecord
-from jaxgenus.optim._devices import device_mesh, place, spread_views
+from jaxgenus.optim._devices import (device_mesh, gathered_views, held_views, place, place_held, spread_views,
+                                     views_layout)
 from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras, step_views
 
 __all__ = [
@@ -53,8 +54,12 @@ __all__ = [
     "optimize_steps",
     "step_views",
     "device_mesh",
+    "gathered_views",
+    "held_views",
     "place",
+    "place_held",
     "spread_views",
+    "views_layout",
     "outside_distance",
     "pyramid_level",
     "render_channels",

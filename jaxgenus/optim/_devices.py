@@ -8,6 +8,10 @@ folded with its index), renders them and takes the gradient of the objective the
 and gradients are averaged over the devices (`pmean`), which is the mean over all sampled views
 (every device samples the same number). The geometric terms are computed alike on every device
 and stay as they are. One device: not used (the caller's path is today's).
+
+Across processes each process may hold only its own views (`held_views`: those its devices
+render): `place_held` lays them out on the mesh without the others, and `gathered_views` hands
+every process all views of a small per-view array (silhouettes at the hull's level, scores).
 """
 
 from __future__ import annotations
@@ -20,7 +24,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
 
-__all__ = ["AXIS", "device_mesh", "place", "spread_views", "views_gradient"]
+__all__ = ["AXIS", "device_mesh", "gathered_views", "held_views", "place", "place_held", "spread_views",
+           "views_gradient", "views_layout"]
 
 AXIS = "views"
 
@@ -51,6 +56,79 @@ def spread_views(n_views: int, n_devices: int) -> tuple[np.ndarray, np.ndarray]:
         order[d * per + len(mine) : (d + 1) * per] = mine[0]
         valid[d * per : d * per + len(mine)] = True
     return order, valid
+
+
+def views_layout(n_views: int, devices: int | None):
+    """`(mesh, order, valid)` of `n_views` views over `devices` devices (None: all, at most one per
+    view): the device mesh (None for one device) and `spread_views`' layout on it."""
+    mesh = device_mesh(min(devices or jax.device_count(), n_views))
+    return (mesh,) + (spread_views(n_views, mesh.size) if mesh is not None else (None, None))
+
+
+def held_views(n_views: int, devices: int | None = None) -> np.ndarray:
+    """The views (sorted indices) this process's devices render when `n_views` views are split over
+    `devices` devices (None: all of every process): what this process needs to load. All views
+    with one process, one device, or a process none of whose devices is used."""
+    mesh, order, _ = views_layout(n_views, devices)
+    if mesh is None or jax.process_count() == 1:
+        return np.arange(n_views)
+    per = len(order) // mesh.size
+    mine = [d.process_index == jax.process_index() for d in mesh.devices.flat]
+    held = np.unique([order[s] for s in range(len(order)) if mine[s // per]])
+    return held if len(held) else np.arange(n_views)
+
+
+def gathered_views(local, held: np.ndarray | None, n_views: int) -> np.ndarray:
+    """`(n_views, ...)`: every process's rows of a per-view array put together. `local` holds the
+    views `held` (None: all of them, nothing to gather); every view must be held by some process."""
+    local = np.asarray(local)
+    if held is None:
+        return local
+    held = np.asarray(held, np.int64)
+    if jax.process_count() == 1:
+        if len(held) != n_views or not np.array_equal(np.sort(held), np.arange(n_views)):
+            raise ValueError(f"views: one process must hold all {n_views} views, got {len(held)}")
+        out = np.empty_like(local)
+        out[held] = local
+        return out
+    from jax.experimental import multihost_utils
+
+    most = int(np.max(multihost_utils.process_allgather(np.int64(len(held)))))
+    pad = np.zeros((most - len(held),) + local.shape[1:], local.dtype)
+    rows = multihost_utils.process_allgather(np.concatenate([local, pad]))
+    index = multihost_utils.process_allgather(np.concatenate([held, np.full(most - len(held), -1, np.int64)]))
+    out = np.zeros((n_views,) + local.shape[1:], local.dtype)
+    seen = np.zeros(n_views, bool)
+    for r, i in zip(rows.reshape((-1,) + local.shape[1:]), index.reshape(-1)):
+        if i >= 0:
+            out[i], seen[i] = r, True
+    if not seen.all():
+        raise ValueError(f"views: no process holds views {np.flatnonzero(~seen)[:10].tolist()} of {n_views}")
+    return out
+
+
+def place_held(tree, mesh, order: np.ndarray, held: np.ndarray):
+    """Per-view arrays that hold only the views `held` (leading axis), split over `mesh` in the
+    layout `order` (`spread_views`): each process hands over the slots its devices keep, which
+    must be views it holds (`held_views`)."""
+    sharding = NamedSharding(mesh, P(AXIS))
+    row = {int(v): r for r, v in enumerate(held)}
+
+    def put(a):
+        if a is None:
+            return None
+        host = np.asarray(a)
+
+        def part(index):
+            slots = np.arange(len(order))[index[0]]
+            missing = [int(order[s]) for s in slots if int(order[s]) not in row]
+            if missing:
+                raise ValueError(f"views: this process's devices render views {missing[:10]} it does not hold")
+            return host[np.array([row[int(order[s])] for s in slots])][(slice(None),) + tuple(index[1:])]
+
+        return jax.make_array_from_callback((len(order),) + host.shape[1:], sharding, part)
+
+    return jax.tree.map(put, tree, is_leaf=lambda x: x is None)
 
 
 def place(tree, mesh, split: bool):

@@ -39,11 +39,11 @@ class FitIndex:
 def _initial_state(start: Start, setup: Setup, options: ReconstructOptions, key, factor: int):
     """A fresh optimizer state at the start; photo targets: the median colour of the fully covered
     pixels of the photos at the first level fitted (1/`factor`: the same whatever size the photos
-    came at) as albedo, uniform light."""
+    came at; of every process's views) as albedo, uniform light."""
     tg = setup.targets
     if tg.kind != "photo":
         return init_optimizer_state(start.mesh, key)
-    level = pyramid_level(tg.fit, factor, normals=False)
+    level = setup.all_views(pyramid_level(tg.fit, factor, normals=False))
     alpha = level[..., 3]
     inside = alpha >= 0.99
     rgb = level[..., :3][inside] if inside.any() else level[..., :3][alpha >= 0.5]
@@ -64,6 +64,15 @@ def _estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
         return []
     return [f"the genus {estimate.genus} was estimated at a low agreement ({estimate.agreement:.0%} of the "
             f"visual hulls' grids; plausible: {list(estimate.plausible)}): give the genus if you know it"]
+
+
+def _device_warnings(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[str]:
+    """Photo-consistency asked for while the views are split over devices, where it is not computed."""
+    if setup.targets.kind != "photo" or options.optimize.weights.consistency <= 0 or levels[0].valid is None:
+        return []
+    n = int(levels[0].valid.sharding.mesh.size)
+    return [f"photo-consistency was not used: the views were split over {n} devices, where the term is not "
+            "computed; fit on one device for it (ReconstructOptions.devices=1, CLI --devices 1)"]
 
 
 def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
@@ -92,7 +101,7 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
                      "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],
         devices=1 if levels[0].valid is None else int(levels[0].valid.sharding.mesh.size),
         ok=verdict.ok, warnings=(verdict.warnings + _estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
-                                 + list(setup.notes)),
+                                 + _device_warnings(setup, options, levels) + list(setup.notes)),
     )
 
 
@@ -107,6 +116,8 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     user_callback = None if callback is None else (
         lambda row, m: callback(dataclasses.replace(row, **where), frame.mesh_to_world(m)))
     say(schedule_line(options, setup, levels))
+    for line in _device_warnings(setup, options, levels):
+        say(line)
     state = _initial_state(start, setup, options, key, levels[0].factor)
     if levels[0].valid is not None:  # views split over devices: the state is replicated on them
         state = place(state, levels[0].valid.sharding.mesh, split=False)
@@ -128,7 +139,8 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
         consistency = (finest.cameras, level, np.asarray(finest.neighbours))
     verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
                              None if app is None else (app.albedo, app.lighting), photos,
-                             carved_start=start.kind.startswith("visual_hull"), consistency=consistency), options)
+                             carved_start=start.kind.startswith("visual_hull"), consistency=consistency,
+                             held=setup.held), options)
     say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
         f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views"
         + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg"))

@@ -48,14 +48,15 @@ def _check_arguments(genus, options):
 
 
 def genus_estimate(images, cams: Cameras, *, targets: str | None = None,
-                   options: ReconstructOptions = ReconstructOptions(), log=None) -> GenusEstimate:
+                   options: ReconstructOptions = ReconstructOptions(), log=None, views=None) -> GenusEstimate:
     """The genus the silhouettes of `images` show (what `reconstruct(images, cams)` estimates
     when no genus is given): a `GenusEstimate` with its `agreement` over the visual hull's grids
     and the `plausible` genera. Holes no silhouette shows are not counted. Arguments as in
     `reconstruct`; host-side, no optimization."""
     if not isinstance(options, ReconstructOptions):
         raise ValueError(f"options must be a ReconstructOptions, got {type(options).__name__}")
-    return prepare(images, cams, None, targets, options, log if log is not None else (lambda line: None)).estimate
+    return prepare(images, cams, None, targets, options, log if log is not None else (lambda line: None),
+                   views).estimate
 
 
 def reconstruct(
@@ -68,6 +69,7 @@ def reconstruct(
     key=None,
     callback=None,
     log=None,
+    views=None,
 ) -> Reconstruction:
     """Reconstruct a watertight mesh of genus `genus` from multi-view images.
 
@@ -91,6 +93,10 @@ def reconstruct(
             cycle's `CycleRecord` (reads like a dict: `row["loss"]`, `row["elapsed"]`, ...)
             and the current mesh in the user's frame (time spent in it is not counted).
         log: optional `log(line)` called with a line per stage (frame, start, cycles, verdict).
+        views: with processes joined by `jax.distributed`, the increasing indices into `cams`
+            of the views `images` holds: each process then passes only its own views
+            (`jaxgenus.optim.held_views(len(cams), options.devices)`: those its devices render)
+            and all cameras. None: `images` holds every view.
 
     Returns:
         A `Reconstruction` (mesh in the user's frame and units). `history["ok"]` is
@@ -101,14 +107,14 @@ def reconstruct(
     say = log if log is not None else (lambda line: None)
     key = jax.random.key(0) if key is None else key
     _check_arguments(genus, options)
-    setup = prepare(images, cams, genus, targets, options, say)
+    setup = prepare(images, cams, genus, targets, options, say, views)
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
                            options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0),
-                           key=key)
+                           key=key, views=views)
 
     start = first_start(setup, fit_genus, say)
     say(_start_line(start, setup.genus, time.perf_counter() - t0))

@@ -18,13 +18,12 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.geometry import Mesh
-from jaxgenus.optim import (device_mesh, view_neighbours, outside_distance, place, pyramid_level, resolution_factors, scaled_cameras,
-                            spread_views, step_views)
+from jaxgenus.optim import (outside_distance, place, place_held, pyramid_level, resolution_factors, scaled_cameras,
+                            step_views, view_neighbours, views_layout)
 from jaxgenus.pipeline._cycles import Level
 from jaxgenus.pipeline._history import CycleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -70,8 +69,7 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
     factors = [max(f, min(floor, factors[0])) if scheduled else f for f in factors]
     if options.one_jit:  # one program, one image size: the last level throughout
         factors = [factors[-1]] * options.n_cycles
-    mesh = device_mesh(min(options.devices or jax.device_count(), len(cams)))
-    order, valid = spread_views(len(cams), mesh.size) if mesh is not None else (None, None)
+    mesh, order, valid = views_layout(len(cams), options.devices)
     photo = tg.kind == "photo" and options.optimize.weights.consistency > 0 and mesh is None
     table = jnp.asarray(view_neighbours(cams)) if photo else None  # photo-consistency pairs (canonical frame)
     built = {}
@@ -84,8 +82,11 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
         views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
         if mesh is not None:  # views split over the devices: each renders ceil(views / devices) of its own
             views = min(-(-views // mesh.size), len(order) // mesh.size) * mesh.size
-            lc, level, outside = place((lc[order], level[order], None if outside is None else outside[order]),
-                                       mesh, split=True)
+            lc = place(lc[order], mesh, split=True)
+            if setup.held is None:
+                level, outside = place((level[order], None if outside is None else outside[order]), mesh, split=True)
+            else:  # this process holds only its own views' images
+                level, outside = place_held((level, outside), mesh, order, setup.held)
         pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
         built[f] = Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
                          None if mesh is None else place(jnp.asarray(valid), mesh, split=True), table)
@@ -135,7 +136,7 @@ class CostModel:
     @staticmethod
     def of(setup: Setup, options: ReconstructOptions, fitted: list[Level], lengths: list[float]) -> CostModel:
         renders = 2 + (setup.targets.kind == "photo")  # the result's and the start's silhouettes, its colours
-        n, h, w = len(setup.cams), setup.cams.height, setup.cams.width
+        n, h, w = len(setup.held_cams()), setup.cams.height, setup.cams.width
         return CostModel(tuple(lv.pixels for lv in fitted), tuple(bool(x > 0 and options.remesh is not None)
                                                                    for x in lengths),
                          options.steps_per_cycle, renders * n * h * w)

@@ -14,12 +14,13 @@ import dataclasses
 import math
 from typing import Callable
 
+import jax
 import numpy as np
 
-from jaxgenus.capture import (SceneFrame, Targets, check_targets, cut_views, hull_thickness, pixel_footprint,
+from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, check_targets, cut_views, hull_thickness, pixel_footprint,
                               scene_frame, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
-from jaxgenus.optim import pyramid_level, resolution_factors, scaled_cameras
+from jaxgenus.optim import gathered_views, pyramid_level, resolution_factors, scaled_cameras
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
@@ -49,6 +50,8 @@ class Setup:
         fine: the run switched to `options.fine()`.
         options: the settings that run (the caller's, or their `fine()`).
         notes: what the run should warn of, found here (views cut by the frame).
+        held: the views (indices into `cams`) `images` and `targets` hold when this process
+            holds only some (`reconstruct(..., views=)`); None: all of them.
     """
 
     images: object
@@ -65,6 +68,15 @@ class Setup:
     fine: bool
     options: ReconstructOptions
     notes: tuple[str, ...] = ()
+    held: np.ndarray | None = None
+
+    def held_cams(self) -> Cameras:
+        """The cameras (canonical frame) of the views this process holds."""
+        return self.cams if self.held is None else self.cams[self.held]
+
+    def all_views(self, local) -> np.ndarray:
+        """A per-view array of the views held here completed with every other process's views."""
+        return gathered_views(local, self.held, len(self.cams))
 
 
 def _cut_note(alpha, say: Callable[[str], None]) -> tuple[str, ...]:
@@ -113,11 +125,20 @@ def hull_factor(alpha, resolutions: tuple[int, ...]) -> int:
     bounding boxes) at least 2 pixels per cell of the finest hull grid. Finer pixels than that add
     nothing a grid point can sample, and the same capture given at its own size or downsampled then
     reads the same silhouettes (same frame, same start). 1 for small images."""
+    return _factor(_extents(alpha), resolutions)
+
+
+def _extents(alpha) -> np.ndarray:
+    """Per view, the longer side of the silhouette's bounding box in pixels (0: an empty one)."""
     a = np.asarray(alpha) >= 0.5
     rows, cols = a.any(axis=2), a.any(axis=1)
-    extent = [max(np.ptp(np.flatnonzero(r)), np.ptp(np.flatnonzero(c))) + 1
-              for r, c in zip(rows, cols) if r.any()]
-    if not extent:
+    return np.array([max(np.ptp(np.flatnonzero(r)), np.ptp(np.flatnonzero(c))) + 1 if r.any() else 0
+                     for r, c in zip(rows, cols)], np.int64)
+
+
+def _factor(extents: np.ndarray, resolutions: tuple[int, ...]) -> int:
+    extent = extents[extents > 0]
+    if not len(extent):
         return 1
     ratio = float(np.median(extent)) / (2.0 * max(resolutions))
     return 2 ** int(math.floor(math.log2(ratio))) if ratio >= 2 else 1
@@ -147,17 +168,43 @@ def downsampled(images, cams: Cameras, factor: int, targets: str | None = None) 
     return small, scaled_cameras(cams, factor)
 
 
+def _held(views, images, cams: Cameras) -> np.ndarray | None:
+    """`views` checked: None, or the increasing indices into `cams` of the views `images` holds."""
+    if views is None:  # across processes each holds all views: the steps that gather still meet
+        return None if jax.process_count() == 1 else np.arange(len(cams))
+    held, n_images = np.asarray(views), len(np.shape(images)) and np.shape(images)[0]
+    if len(held) == 0:
+        raise ValueError("views: empty; a process must hold at least one view")
+    if held.ndim != 1 or not np.issubdtype(held.dtype, np.integer) or len(held) != n_images:
+        raise ValueError(f"views: expected {n_images} view indices (one per image), got an array of shape "
+                         f"{held.shape} and dtype {held.dtype}")
+    if len(held) and (held.min() < 0 or held.max() >= len(cams) or np.any(np.diff(held) <= 0)):
+        raise ValueError(f"views: expected increasing indices into the {len(cams)} cameras, got {held.tolist()[:10]}")
+    return held.astype(np.int64)
+
+
 def prepare(images, cams: Cameras, genus: int | None, targets: str | None, options: ReconstructOptions,
-            say: Callable[[str], None]) -> Setup:
-    """The `Setup` of a run (see the module doc); `say(line)` reports each finding."""
-    tg = check_targets(images, cams, targets)
+            say: Callable[[str], None], views=None) -> Setup:
+    """The `Setup` of a run (see the module doc); `say(line)` reports each finding. `views`: the
+    indices into `cams` of the views `images` holds, when this process holds only some (the
+    others are held by the other processes joined by `jax.distributed`)."""
+    held = _held(views, images, cams)
+    tg = check_targets(images, cams if held is None else cams[held], targets)
+    if held is not None:  # every process must fit the same kind of targets
+        kinds = gathered_views(np.full(len(held), TARGET_KINDS.index(tg.kind)), held, len(cams))
+        if len(set(kinds.tolist())) > 1:
+            raise ValueError(f"targets: the processes' images read as different kinds "
+                             f"({sorted({TARGET_KINDS[k] for k in kinds})}); give targets=")
     if options.downsample > 1:
         big, cams = cams, scaled_cameras(cams, options.downsample)
         images, tg = _downsampled_targets(tg, options.downsample)
         say(f"downsample: fitting {big.width}x{big.height} images as {cams.width}x{cams.height} copies "
             f"(1/{options.downsample}), cameras scaled to match")
-    factor = hull_factor(tg.alpha, (48,) + tuple(options.hull_resolutions))
-    alpha = pyramid_level(tg.alpha[..., None], factor)[..., 0]
+    factor = _factor(gathered_views(_extents(tg.alpha), held, len(cams)), (48,) + tuple(options.hull_resolutions))
+    alpha = gathered_views(pyramid_level(tg.alpha[..., None], factor)[..., 0], held, len(cams))
+    if held is not None:
+        say(f"views: this process holds {len(held)} of {len(cams)} views; the silhouettes of all at 1/{factor} "
+            "for the frame and the visual hulls")
     frame = scene_frame(alpha, scaled_cameras(cams, factor))
     canonical = frame.cameras_to_canonical(cams)
     say(f"frame: object centre {np.round(frame.centre, 6).tolist()}, radius {frame.scale:.6g} (user units); "
@@ -173,4 +220,4 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options.fine() if fine else options,
-                 notes=notes)
+                 notes=notes, held=held)

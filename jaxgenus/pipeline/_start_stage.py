@@ -43,7 +43,7 @@ def _evidence_level(setup: Setup) -> tuple[object, np.ndarray]:
     cams, factor = setup.cams, 1
     while max(cams.height, cams.width) / (2 * factor) >= 192:
         factor *= 2
-    return scaled_cameras(cams, factor), pyramid_level(setup.targets.fit, factor, normals=True)
+    return scaled_cameras(cams, factor), setup.all_views(pyramid_level(setup.targets.fit, factor, normals=True))
 
 
 def _image_handles(setup: Setup, start: Start, fit_genus: Callable, edge: float) -> Start:

@@ -42,7 +42,7 @@ import numpy as np
 
 from jaxgenus.capture import Targets
 from jaxgenus.geometry import Cameras, Mesh
-from jaxgenus.optim import consistency_windows
+from jaxgenus.optim import consistency_windows, gathered_views
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import render, render_photo
 
@@ -151,6 +151,8 @@ class Evidence:
         carved_start: the start was carved from these very silhouettes (a visual hull), so it
             matches them by construction, sharp corners and all: a smooth result may trail it
             by a little and still fit (`START_TOLERANCE`).
+        held: the views `targets` and `photos` hold when this process holds only some
+            (indices into `cams`); each process scores its own and the scores are put together.
     """
 
     result: Mesh
@@ -164,6 +166,7 @@ class Evidence:
     photos: np.ndarray | None = None
     carved_start: bool = False
     consistency: tuple | None = None
+    held: np.ndarray | None = None
 
 
 #: How far (mean silhouette IoU) a result may trail its start before the verdict fails: a
@@ -178,8 +181,13 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
     e, sigma = evidence, options.render.sigma
     result, start, cams, targets, steps, cycles = e.result, e.start, e.cams, e.targets, e.steps, e.cycles
     min_iou, outlier_gap, max_photo_error = options.min_view_iou, options.outlier_gap, options.max_photo_error
-    iou, nerr = silhouette_ious(result, cams, targets.alpha, sigma=sigma, normals=targets.normals)
-    start_iou, _ = silhouette_ious(start, cams, targets.alpha, sigma=sigma)
+    here = cams if e.held is None else cams[e.held]  # a process scores the views it holds
+
+    def every(scores):  # a per-view list with the other processes' views
+        return None if scores is None else gathered_views(np.asarray(scores, np.float64), e.held, len(cams)).tolist()
+
+    iou, nerr = map(every, silhouette_ious(result, here, targets.alpha, sigma=sigma, normals=targets.normals))
+    start_iou = every(silhouette_ious(start, here, targets.alpha, sigma=sigma)[0])
     fail, warn = [], []
     if not e.genus_ok:
         fail.append("the result's genus is not the requested one")
@@ -213,7 +221,7 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
                     "raise max_faces for more detail)")
     perr = None
     if e.appearance is not None:
-        perr = photo_errors(result, cams, e.photos, *e.appearance, sigma=sigma)
+        perr = every(photo_errors(result, here, e.photos, *e.appearance, sigma=sigma))
         med = float(np.nanmedian(perr))
         if not med <= max_photo_error:
             fail.append(f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian "
