@@ -1,7 +1,7 @@
 """Hidden handles: are a result's handles the object's own?
 
 Shapes whose holes no silhouette shows (`tests/_hidden.py`: the covered plate,
-genus 4; a mug with a strap handle flat against its side, genus 1) and shared meshes (the boot, genus 12, whose lace eyelets are seen
+genus 4; the long-tunnel plate, genus 4, whose visual hull has genus 0; a mug with a strap handle flat against its side, genus 1) and shared meshes (the boot, genus 12, whose lace eyelets are seen
 only against the boot) are ray cast with trimesh + embree into normal maps
 (24 views), and reconstructed with the default options and the true genus.
 
@@ -13,7 +13,7 @@ component: every handle of the result goes through one of the object's holes.
 The result is scored in the frame it was reconstructed in (the cameras' frame,
 no alignment); CD and IoU after ICP alignment, like the other benchmarks.
 
-    python benchmarks/hidden_handles.py [--shapes covered_plate mug shared:boot] [--res 256] [--out docs]
+    python benchmarks/hidden_handles.py [--shapes covered_plate long_tunnel_plate mug shared:boot] [--res 256] [--out docs]
 
 Writes OUT/hidden_handles.{json,md,png}.
 """
@@ -37,7 +37,7 @@ sys.path.insert(0, str(HERE))
 def load(spec: str):
     import jaxgenus as jg
 
-    if spec in ("covered_plate", "mug"):
+    if spec in ("covered_plate", "long_tunnel_plate", "mug"):
         import _hidden
 
         v, f, genus = getattr(_hidden, spec)()
@@ -107,7 +107,7 @@ def write_report(rows, out: Path):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--shapes", nargs="+", default=["covered_plate", "mug", "shared:boot"])
+    ap.add_argument("--shapes", nargs="+", default=["covered_plate", "long_tunnel_plate", "mug", "shared:boot"])
     ap.add_argument("--res", type=int, default=256)
     ap.add_argument("--views", type=int, default=24)
     ap.add_argument("--grid", type=int, nargs="+", default=[128, 192, 256, 384],

@@ -6,6 +6,10 @@ within a few degrees of its axis), and three round holes through the plate into
 the tunnel. Genus 4 (the tunnel and three holes); every hole is seen only
 against the base below it. Centred at the origin, farthest vertex at distance 1.
 
+`long_tunnel_plate()`: the same with a tunnel that no camera of
+`sphere_cameras(24)` sees through (visual hull genus 0): its four handles are
+all hidden.
+
 `mug()`: a closed cylindrical body with a strap handle flat against its side
 (a belt loop: a slot 0.043 wide between strap and body, seen through only within
 a few degrees of its axis, elsewhere against the body). Genus 1, centred and scaled the same way.
@@ -21,23 +25,43 @@ def _box(manifold3d, lo, hi):
     return manifold3d.Manifold.cube(tuple(np.asarray(hi, float) - lo)).translate(tuple(lo))
 
 
-def covered_plate(hole_radius: float = 0.13, segments: int = 48, holes: bool = True):
+def covered_plate(hole_radius: float = 0.13, segments: int = 48, holes: bool = True, length: float = 2.0,
+                  tunnel: float = 0.15, filled: bool = False):
     """`(vertices, faces, genus)` of the covered plate (module doc), float64 / int64;
-    `holes=False`: the same without the three holes (genus 1), in the same frame."""
+    `holes=False`: the same without the three holes (genus 1), in the same frame;
+    `filled=True`: also without the tunnel (a block, genus 0).
+    `length`: the plate's (and tunnel's) length, `tunnel`: the tunnel's height, both
+    before scaling (plate width 1.2)."""
     import manifold3d
 
-    solid = _box(manifold3d, (0, 0, 0), (2.0, 1.2, 0.3))
-    solid = solid + _box(manifold3d, (0, 0, 0.25), (2.0, 0.22, 0.5))
-    solid = solid + _box(manifold3d, (0, 0.98, 0.25), (2.0, 1.2, 0.5))
-    solid = solid + _box(manifold3d, (0, 0, 0.45), (2.0, 1.2, 0.62))
-    for x in (0.5, 1.0, 1.5) if holes else ():
-        c = manifold3d.Manifold.cylinder(0.4, hole_radius, hole_radius, segments).translate((x, 0.6, 0.35))
+    top = 0.3 + tunnel
+    solid = _box(manifold3d, (0, 0, 0), (length, 1.2, 0.3))
+    solid = solid + _box(manifold3d, (0, 0, 0.25), (length, 0.22, top + 0.05))
+    solid = solid + _box(manifold3d, (0, 0.98, 0.25), (length, 1.2, top + 0.05))
+    solid = solid + _box(manifold3d, (0, 0, top), (length, 1.2, top + 0.17))
+    if filled:
+        solid = solid + _box(manifold3d, (0, 0, 0), (length, 1.2, top + 0.17))
+    for x in (0.25 * length, 0.5 * length, 0.75 * length) if holes else ():
+        c = manifold3d.Manifold.cylinder(top + 0.05, hole_radius, hole_radius, segments).translate(
+            (x, 0.6, 0.35))
         solid = solid - c
     mesh = solid.to_mesh()
     v = np.asarray(mesh.vert_properties, np.float64)[:, :3]
     f = np.asarray(mesh.tri_verts, np.int64)
     v = v - 0.5 * (v.min(0) + v.max(0))
     return v / np.linalg.norm(v, axis=1).max(), f, int(solid.genus())
+
+
+def long_tunnel_plate(holes: bool = True, filled: bool = False):
+    """The covered plate with a taller tunnel (0.21 of the object's radius high, 1.65 long)
+    and smaller holes (radius 0.08), turned 30 degrees about the plate's normal so that
+    no camera of `sphere_cameras(24)` sees through the tunnel (the nearest is 18 degrees
+    off its axis; it is seen through within 7): its visual hull has genus 0. `holes`,
+    `filled` as for `covered_plate`."""
+    v, f, genus = covered_plate(hole_radius=0.1, length=2.0, tunnel=0.25, holes=holes, filled=filled)
+    a = np.radians(30.0)
+    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    return v @ turn.T, f, genus
 
 
 def mug():

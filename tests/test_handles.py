@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import jaxgenus as jg
-from _hidden import covered_plate
+from _hidden import covered_plate, long_tunnel_plate
 from _raycast import raycast
 
 
@@ -108,3 +108,25 @@ def test_reconstruct_takes_the_hidden_handles_from_the_images_in_user_units():
         assert 0.05 * scale < h["radius"] < 0.2 * scale and h["loss_after"] < h["loss_before"]
     place = jg.metrics.handle_placement(truth, rec.mesh, resolution=128, genus=4)
     assert place.placed, place
+
+
+def test_a_long_tunnel_no_silhouette_shows_and_the_holes_into_it_are_opened():
+    """The long-tunnel plate (genus 4; visual hull genus 0): the "fit" is the block with the
+    tunnel and holes filled. The tunnel (1.6 long) is longer than any cut from one side; it
+    is opened between its two mouths, then the three holes down into it."""
+    import trimesh
+
+    v, f, genus = long_tunnel_plate()
+    v0, f0, genus0 = long_tunnel_plate(holes=False, filled=True)
+    assert (genus, genus0) == (4, 0)
+    fit_v, fit_f = trimesh.remesh.subdivide_to_size(v0, f0, 0.03)
+    cams = jg.sphere_cameras(24, radius=3.0, fov_deg=40.0, resolution=128)
+    truth = jg.Mesh.from_numpy(v.astype(np.float32), f.astype(np.int32))
+    cut_v, cut_f, opened = jg.open_handles(fit_v, fit_f, cams, raycast(cams, truth), 4)
+    assert [r["cut"] for r in opened] == ["tunnel", "hole", "hole", "hole"], opened
+    tunnel = opened[0]
+    axis = np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0)), 0.0])  # the tunnel's axis (see _hidden)
+    assert abs(np.dot(tunnel["normal"], axis)) > 0.95 and tunnel["depth"] > 1.2
+    mesh = jg.Mesh.from_numpy(cut_v.astype(np.float32), cut_f.astype(np.int32))
+    place = jg.metrics.handle_placement(truth, mesh, resolution=128, genus=4)
+    assert place.object_resolved and place.placed, place

@@ -10,12 +10,22 @@ surface, per vertex as a fraction of the views that see it, and returns the
 connected patches of vertices where that fraction is high, largest first: each
 a disc (centre, normal, radius from its area).
 
-`open_handles` then tests the candidates one by one, as a topological
-derivative: a cylinder along the patch's inward normal is subtracted
-(manifold3d, exact) at the shallowest depth that adds exactly one handle and
-keeps one piece, and the cut is kept only when it lowers the image loss (normal
-error plus silhouette error, rendered in every view). A patch that is not a
-hole (a dent the fit missed, a wall) fails one of the two tests.
+`open_handles` then tests cuts one by one, as a topological derivative, and
+keeps a cut only when it adds exactly one handle, keeps one piece and lowers
+the image loss (normal error plus silhouette error, rendered in every view):
+
+- tunnels first: two patches that face away from each other, each within 40
+  degrees of the straight path between them, may be the mouths of one tunnel
+  (of any length and direction, longer than any cut from one side); the fit
+  fills it, so a straight prism is subtracted from mouth to mouth, its
+  cross-section the outline both patches share across the path, at several
+  sizes (the one with the lowest loss is kept);
+- then holes: a cylinder along a patch's inward normal (manifold3d, exact) at
+  the shallowest depth that adds a handle, of the patch's radius and 0.75 and
+  0.5 of it (the patch spreads past the rim; the one with the lowest loss is
+  kept); a hole into a tunnel opened before reaches it there.
+
+A patch that is not a hole (a dent the fit missed, a wall) fails a test.
 """
 
 from __future__ import annotations
@@ -38,13 +48,15 @@ class HandleCandidate(NamedTuple):
     """A patch of the surface where the images show a hole: a disc and its evidence.
 
     `score`: the patch's area weighted by the fraction of the views in which it
-    disagrees with the target normals.
+    disagrees with the target normals; `points`: the patch's vertices `(K, 3)` (its
+    shape, for a tunnel's cross-section).
     """
 
     centre: np.ndarray
     normal: np.ndarray
     radius: float
     score: float
+    points: np.ndarray | None = None
 
 
 def _render_normals(v, f, cams: Cameras) -> np.ndarray:
@@ -132,7 +144,8 @@ def handle_candidates(vertices, faces, cams: Cameras, targets, *, angle_deg: flo
         nrm = normal[ids].sum(0)
         a = float(area[ids].sum())
         found.append(HandleCandidate(centre=v[ids].mean(0), normal=nrm / max(np.linalg.norm(nrm), 1e-12),
-                                     radius=float(np.sqrt(a / np.pi)), score=float((fraction[ids] * area[ids]).sum())))
+                                     radius=float(np.sqrt(a / np.pi)), score=float((fraction[ids] * area[ids]).sum()),
+                                     points=v[ids]))
     return sorted(found, key=lambda h: -h.score)
 
 
@@ -152,14 +165,66 @@ def _cylinder_cut(solid, candidate: HandleCandidate, depths):
     return None
 
 
+def _tunnel_cut(solid, a: HandleCandidate, b: HandleCandidate, *, max_angle_deg: float = 40.0,
+                scales=(1.0, 0.85, 0.7, 0.55, 0.4)) -> list:
+    """Straight tunnels from patch `a` to patch `b` cut from `solid` (a list, maybe empty).
+
+    Only when the path leaves `a` inwards and reaches `b` from inside (each normal
+    within `max_angle_deg` of the path). The cross-section is what both mouths share
+    across the path (the intersection of the two patches' convex outlines), shrunk
+    about its centre to `scales` of it (a patch also spreads past its mouth): every
+    cut that adds exactly one handle and keeps one piece, as `(length, half_width, cut)`.
+    """
+    import manifold3d
+
+    path = b.centre - a.centre
+    length = float(np.linalg.norm(path))
+    if length < 1e-6 or a.points is None or b.points is None or min(len(a.points), len(b.points)) < 3:
+        return []
+    d = path / length
+    if min(-a.normal @ d, b.normal @ d) < np.cos(np.radians(max_angle_deg)):
+        return []
+    u = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(d, u)
+    shared = manifold3d.CrossSection.hull_points((a.points - a.centre) @ np.column_stack([u, w]))
+    shared = shared ^ manifold3d.CrossSection.hull_points((b.points - a.centre) @ np.column_stack([u, w]))
+    if shared.is_empty() or shared.area() < 1e-8:
+        return []
+    lo, hi = (np.asarray(x, float) for x in np.split(np.asarray(shared.bounds(), float), 2))
+    mid = 0.5 * (lo + hi)
+    frame = np.column_stack([u, w, d, a.centre - 0.1 * d])
+    cuts = []
+    for scale in scales:
+        section = shared.translate(tuple(-mid)).scale((scale, scale)).translate(tuple(mid))
+        cut = solid - manifold3d.Manifold.extrude(section, length + 0.2).transform(frame)
+        if cut.genus() == solid.genus() + 1 and len(cut.decompose()) == 1:
+            cuts.append((length, float(np.sqrt(section.area() / np.pi)), cut))
+    return cuts
+
+
+def _tunnel_pairs(candidates: list[HandleCandidate]) -> list[tuple[int, int]]:
+    """Index pairs `(entry, exit)` of candidates that may be the two mouths of one tunnel
+    (facing away from each other), strongest first."""
+    pairs = []
+    for i, a in enumerate(candidates):
+        for j in range(i + 1, len(candidates)):
+            b = candidates[j]
+            if a.normal @ b.normal < 0.0:
+                pairs.append((i, j) if -a.normal @ (b.centre - a.centre) > 0.0 else (j, i))
+    return sorted(pairs, key=lambda p: -(candidates[p[0]].score + candidates[p[1]].score))
+
+
 def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tries: int | None = None,
                  depths=None):
     """Open up to `count` handles where the images show holes (module doc).
 
     Returns `(vertices, faces, records)`: the cut surface (the input when nothing
-    was opened) and per opened handle `{"centre", "normal", "radius", "depth",
-    "loss_before", "loss_after"}`. `max_tries` candidates are tested (default
-    `2 count + 4`); `depths` are the cut depths tried (default 0.05 to 1.0).
+    was opened) and per opened handle `{"cut", "centre", "normal", "radius", "depth",
+    "loss_before", "loss_after"}`: `cut` is `"tunnel"` (then `centre` and `"end"` are
+    its mouths, `normal` its direction, `depth` its length, `radius` that of a
+    disc of its cross-section's area) or `"hole"`. The `max_tries` strongest candidates are used (default
+    `2 count + 4`); `depths` are the hole depths tried (default 0.05 to 1.0).
     """
     import manifold3d
 
@@ -173,20 +238,50 @@ def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tri
     if count == 0:
         return v, f, []
     depths = np.arange(0.05, 1.0001, 0.05) if depths is None else depths
+    hole_scales = (1.0, 0.75, 0.5)
     tries = 2 * count + 4 if max_tries is None else max_tries
     loss = normal_image_loss(v, f, cams, targets)
     records = []
-    for cand in handle_candidates(v, f, cams, targets)[:tries]:
+    candidates = handle_candidates(v, f, cams, targets)[:tries]
+
+    def keep(options):
+        """Keep the option `(cut, record)` that lowers the loss most, if any does."""
+        nonlocal solid, v, f, loss
+        best = None
+        for cut, record in options:
+            out = cut.to_mesh()
+            cv, cf = np.asarray(out.vert_properties, np.float32)[:, :3], np.asarray(out.tri_verts, np.int64)
+            after = normal_image_loss(cv, cf, cams, targets)
+            if after < (loss if best is None else best[0]):
+                best = (after, cut, cv, cf, record)
+        if best is None:
+            return False
+        records.append({**best[4], "loss_before": loss, "loss_after": best[0]})
+        loss, solid, v, f = best[:4]
+        return True
+
+    used = set()
+    for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
         if len(records) == count:
             break
-        hit = _cylinder_cut(solid, cand, depths)
-        if hit is None:
+        if i in used or j in used:
             continue
-        out = hit[1].to_mesh()
-        cv, cf = np.asarray(out.vert_properties, np.float32)[:, :3], np.asarray(out.tri_verts, np.int64)
-        after = normal_image_loss(cv, cf, cams, targets)
-        if after < loss:
-            records.append({"centre": cand.centre.tolist(), "normal": cand.normal.tolist(), "radius": cand.radius,
-                            "depth": hit[0], "loss_before": loss, "loss_after": after})
-            solid, v, f, loss = hit[1], cv, cf, after
+        a, b = candidates[i], candidates[j]
+        options = [(cut, {"cut": "tunnel", "centre": a.centre.tolist(), "end": b.centre.tolist(),
+                          "normal": ((b.centre - a.centre) / length).tolist(), "radius": half,
+                          "depth": length}) for length, half, cut in _tunnel_cut(solid, a, b)]
+        if keep(options):
+            used.update((i, j))
+    for i, cand in enumerate(candidates):
+        if len(records) == count:
+            break
+        if i in used:
+            continue
+        options = []
+        for scale in hole_scales:  # a patch spreads past its hole's rim: narrower cuts too
+            hit = _cylinder_cut(solid, cand._replace(radius=cand.radius * scale), depths)
+            if hit is not None:
+                options.append((hit[1], {"cut": "hole", "centre": cand.centre.tolist(), "normal": cand.normal.tolist(),
+                                         "radius": cand.radius * scale, "depth": hit[0]}))
+        keep(options)
     return v, f, records

@@ -91,7 +91,11 @@ class HandleRecord(_Readable):
     Attributes:
         source: `"hull"` (the visual hull has it), `"images"` (opened where the images show a
             hole), `"drilled"` (a small tunnel at a spread-out site), `"primitive"` or `"sphere"`.
-        centre, radius, depth: the cut that opened it (`"images"` only; user units).
+        cut: `"hole"` (a cylinder into the surface at one patch) or `"tunnel"` (a straight
+            tunnel between two patches, its mouths), `"images"` only.
+        centre, radius, depth: the cut that opened it (`"images"` only; user units): for a
+            tunnel, its first mouth, radius of a disc of its cross-section's area, and length.
+        end: a tunnel's other mouth (user units).
         loss_before, loss_after: the image loss before and after that cut (`"images"` only).
     """
 
@@ -101,6 +105,8 @@ class HandleRecord(_Readable):
     depth: float | None = None
     loss_before: float | None = None
     loss_after: float | None = None
+    cut: str | None = None
+    end: tuple[float, float, float] | None = None
 
 
 @dataclasses.dataclass(frozen=True)

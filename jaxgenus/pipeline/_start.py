@@ -238,14 +238,40 @@ def _hull_start(hulls: HullTable, genus: int, target: float, options: Reconstruc
     return None, None, 0
 
 
+def _sliver_share(v: np.ndarray, f: np.ndarray, degrees: float = 5.0) -> float:
+    """The share of the faces whose smallest angle is below `degrees`."""
+    p = v[f].astype(np.float64)
+    cos_max = np.full(len(f), -1.0)
+    for k in range(3):
+        e1, e2 = p[:, (k + 1) % 3] - p[:, k], p[:, (k + 2) % 3] - p[:, k]
+        cos = np.einsum("ij,ij->i", e1, e2) / (np.linalg.norm(e1, axis=1) * np.linalg.norm(e2, axis=1) + 1e-30)
+        cos_max = np.maximum(cos_max, cos)
+    return float(np.mean(cos_max > np.cos(np.radians(degrees))))
+
+
 def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOptions) -> Mesh | None:
     """`mesh` remeshed to edge length `target` within `options.face_budget`, padded to its
-    capacity bucket; None unless the result is one closed piece of genus `genus`."""
-    m, _ = remesh(mesh, RemeshOptions(target_edge_length=target, iterations=5, max_faces=options.face_budget))
-    v, f = m.to_numpy()
-    if len(f) > options.face_budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+    capacity bucket; None unless the result is one closed piece of genus `genus`.
+
+    A mesh with sharp creases (a boolean cut) can make the adaptive remesher refine into
+    the face budget and stop there with slivers; then (more than 1 % of the faces under 5
+    degrees, or the budget reached) it is remeshed again at 1.25x, 1.5625x... the edge
+    length, up to three times; the best shaped valid remesh is returned."""
+    best = None
+    for attempt in range(4):
+        m, _ = remesh(mesh, RemeshOptions(target_edge_length=target * 1.25**attempt, iterations=5 if attempt == 0 else 10,
+                                          max_faces=options.face_budget))
+        v, f = m.to_numpy()
+        if len(f) > options.face_budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+            continue
+        slivers = _sliver_share(v, f)
+        if best is None or slivers < best[0]:
+            best = (slivers, v, f)
+        if slivers <= 0.01 and len(f) < 0.98 * options.face_budget:
+            break
+    if best is None:
         return None
-    return Mesh.from_numpy(v.astype(np.float32), f, capacity=capacity_bucket(options.face_budget))
+    return Mesh.from_numpy(best[1].astype(np.float32), best[2], capacity=capacity_bucket(options.face_budget))
 
 
 def _primitive_start(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:

@@ -65,9 +65,12 @@ def _image_handles(setup: Setup, start: Start, fit_genus: Callable, edge: float)
     mesh = None if mesh is None else remeshed_start(mesh, setup.genus, edge, setup.options)
     if mesh is None:
         return dataclasses.replace(start, handles=_sources(start, setup.genus))
-    found = tuple(HandleRecord("images", centre=tuple((np.asarray(r["centre"]) * frame.scale + frame.centre).tolist()),
-                               radius=r["radius"] * frame.scale, depth=r["depth"] * frame.scale,
-                               loss_before=r["loss_before"], loss_after=r["loss_after"]) for r in opened)
+    def user(point):
+        return None if point is None else tuple((np.asarray(point) * frame.scale + frame.centre).tolist())
+
+    found = tuple(HandleRecord("images", centre=user(r["centre"]), radius=r["radius"] * frame.scale,
+                               depth=r["depth"] * frame.scale, loss_before=r["loss_before"],
+                               loss_after=r["loss_after"], cut=r["cut"], end=user(r.get("end"))) for r in opened)
     handles = (HandleRecord("hull"),) * have + found + (HandleRecord("drilled"),) * missing
     return Start(mesh, "fit+images" + ("+tunnels" if missing else ""), start.hull_grid, missing, handles)
 
