@@ -18,6 +18,15 @@ import pytest
 import jaxgenus as jg
 from jaxgenus._ffi import native
 from jaxgenus.geometry._remesh import _PYTHON_ONLY_OPTIONS, RemeshInfo, RemeshOptions
+
+
+@pytest.fixture(autouse=True)
+def _on_the_cpu_device():
+    """The native kernels are registered for the CPU platform; these tests call them directly
+    (the library reaches them from other platforms through `host_ffi_call`), so they pin the
+    CPU device when the default backend is a GPU."""
+    with jax.default_device(jax.devices("cpu")[0]):
+        yield
 from jaxgenus.geometry._topology import MeshReport
 
 # RemeshInfo fields filled by the caller, not from the info vector.

@@ -62,7 +62,9 @@ class SurfaceProjector {
 // of (area-weighted centroid of its incident face centroids - position), then
 // is projected onto `reference` (if given), which also re-interpolates the
 // sizing field there. Carried attributes are not changed by smoothing.
-void tangential_smooth(Mesh& m, double lambda, const SurfaceProjector* reference);
+// `max_move` > 0 caps a vertex's move at max_move times its sizing value (0: no cap).
+void tangential_smooth(Mesh& m, double lambda, const SurfaceProjector* reference,
+                       double max_move = 0.0);
 
 // Per-vertex discrete curvatures: K = angle deficit / A, H from the cotangent
 // Laplace-Beltrami operator (H > 0 on a sphere with outward normals), A the

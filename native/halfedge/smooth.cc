@@ -171,7 +171,7 @@ Vec3 SurfaceProjector::project(const Vec3& p, double* value, int32_t* hint) cons
   return best_p;
 }
 
-void tangential_smooth(Mesh& m, double lambda, const SurfaceProjector* reference) {
+void tangential_smooth(Mesh& m, double lambda, const SurfaceProjector* reference, double max_move) {
   const int32_t nvs = m.vertex_slots();
   std::vector<Vec3> moved(nvs);
   for (int32_t v = 0; v < nvs; ++v) {
@@ -199,8 +199,10 @@ void tangential_smooth(Mesh& m, double lambda, const SurfaceProjector* reference
     }
     const Vec3 nrm = normal_sum * (1.0 / nl);
     Vec3 d = centroid_sum * (1.0 / weight) - p;
-    d = d - nrm * dot(nrm, d);
-    moved[v] = p + d * lambda;
+    d = (d - nrm * dot(nrm, d)) * lambda;
+    const double dl = norm(d), cap = max_move * m.sizing[v];
+    if (cap > 0 && dl > cap) d = d * (cap / dl);
+    moved[v] = p + d;
   }
   for (int32_t v = 0; v < nvs; ++v) {
     if (m.is_dead(VertexId{v})) continue;

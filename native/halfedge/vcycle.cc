@@ -174,8 +174,9 @@ void assign_sizing(Mesh& m, const RemeshSettings& s, RemeshOutcome* out) {
   }
 }
 
-void smooth_and_project(Mesh& m, const RemeshSettings& s, const SurfaceProjector* ref) {
-  for (int i = 0; i < s.smoothing_steps; ++i) tangential_smooth(m, s.smoothing_lambda, ref);
+void smooth_and_project(Mesh& m, const RemeshSettings& s, const SurfaceProjector* ref,
+                        double max_move = 0.0) {
+  for (int i = 0; i < s.smoothing_steps; ++i) tangential_smooth(m, s.smoothing_lambda, ref, max_move);
 }
 
 }  // namespace
@@ -193,7 +194,11 @@ RemeshOutcome remesh(Mesh& m, const RemeshSettings& s) {
   if (s.coarsen_factor > 1) {  // V-cycle: coarsening phase toward a longer target
     if (!collapse_short_edges(m, s, s.coarsen_factor, chi, &out)) return fail();
     if (!equalize_valences(m, s, chi, &out)) return fail();
-    smooth_and_project(m, s, ref.get());
+    // The mesh is not refined yet: on a coarse input (a boolean cut's long faces)
+    // a ring's centroid can lie far across the surface, and the projection would
+    // put the vertex on another part of it (the far side of a thin wall), folding
+    // the mesh. So a move is capped at half the coarsened target.
+    smooth_and_project(m, s, ref.get(), 0.5 * s.coarsen_factor);
     m.compact();
   }
   for (int it = 0; it < s.iterations; ++it) {  // refinement phase at the target
