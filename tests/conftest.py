@@ -46,3 +46,12 @@ def shared_meshes():
     if root is None:
         pytest.skip("../shared/meshes is absent")
     return root
+
+
+@pytest.fixture
+def cpu_device():
+    """Runs a test on the CPU device. The native kernels are registered for the CPU platform;
+    tests that call them directly (the library reaches them from other platforms through
+    `host_ffi_call`) use this so that they also pass where the default backend is a GPU."""
+    with jax.default_device(jax.devices("cpu")[0]):
+        yield

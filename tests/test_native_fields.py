@@ -20,13 +20,8 @@ from jaxgenus._ffi import native
 from jaxgenus.geometry._remesh import _PYTHON_ONLY_OPTIONS, RemeshInfo, RemeshOptions
 
 
-@pytest.fixture(autouse=True)
-def _on_the_cpu_device():
-    """The native kernels are registered for the CPU platform; these tests call them directly
-    (the library reaches them from other platforms through `host_ffi_call`), so they pin the
-    CPU device when the default backend is a GPU."""
-    with jax.default_device(jax.devices("cpu")[0]):
-        yield
+# the native kernels are CPU targets called directly here: pin the CPU device (conftest.py)
+pytestmark = pytest.mark.usefixtures("cpu_device")
 from jaxgenus.geometry._topology import MeshReport
 
 # RemeshInfo fields filled by the caller, not from the info vector.

@@ -14,13 +14,8 @@ from jaxgenus.rendering._splat_native import splat_all
 from _meshes import icosphere
 
 
-@pytest.fixture(autouse=True)
-def _on_the_cpu_device():
-    """The native kernels are registered for the CPU platform; these tests call them directly
-    (the library reaches them from other platforms through `host_ffi_call`), so they pin the
-    CPU device when the default backend is a GPU."""
-    with jax.default_device(jax.devices("cpu")[0]):
-        yield
+# the native kernels are CPU targets called directly here: pin the CPU device (conftest.py)
+pytestmark = pytest.mark.usefixtures("cpu_device")
 
 RES = 24
 # (attrs, want_depth): cov only; cov + normal; cov + normal + shaded + depth
