@@ -57,7 +57,8 @@ def test_verdict_renders_in_chunks_with_the_same_numbers(monkeypatch):
 def test_detail_floor_follows_the_face_budget():
     """Photos are fitted down to the level whose pixels are half the edge the face budget allows:
     a unit sphere (area 4 pi) at 12k faces has edges of 0.0618; pixels of 0.001 -> 30.9 px per half
-    edge -> 1/16; 4x the faces halve the edge -> 1/8; silhouettes alike; normal maps are not floored."""
+    edge -> 1/16; 4x the faces halve the edge -> 1/8; photo-consistency: a quarter edge -> 1/8;
+    silhouettes alike (without the consistency); normal maps are not floored."""
     sphere = jg.Mesh.from_numpy(*(np.asarray(a) for a in _icosphere()))
     setup = types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"), pixel=0.001)
     opts = jg.ReconstructOptions()
@@ -65,8 +66,11 @@ def test_detail_floor_follows_the_face_budget():
     assert _schedule.detail_floor(setup, opts.updated(max_faces=48000), sphere) == 8
     assert _schedule.detail_floor(types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"), pixel=0.1),
                                  opts, sphere) == 1
+    setup.cams = [None] * 8
+    assert _schedule.detail_floor(setup, opts.updated(consistency=1.0), sphere) == 8  # a quarter edge
     setup.targets.kind = "silhouette"
     assert _schedule.detail_floor(setup, opts, sphere) == 16
+    assert _schedule.detail_floor(setup, opts.updated(consistency=1.0), sphere) == 16  # photos only
     setup.targets.kind = "normals"
     assert _schedule.detail_floor(setup, opts, sphere) == 1
 
