@@ -7,7 +7,8 @@ import jax
 import jax.numpy as jnp
 
 import jaxgenus as jg
-from jaxgenus.optim import consistency_windows, optimize_block, init_optimizer_state, photo_consistency, view_neighbours
+from jaxgenus.optim import (ROBUST_SPREAD, consistency_windows, optimize_block, init_optimizer_state, photo_consistency,
+                            robust_cost, view_neighbours)
 from _meshes import torus, torus_trimesh
 from _raycast import raycast_lambert
 
@@ -72,10 +73,10 @@ def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, sp
         plan = None if splat == "default" else jg.plan_render(m, c64, sigma=0.1)
         nd = jax.lax.stop_gradient(jg.render(m, c64[nb], channels=("depth", "alpha"), plan=plan))
 
-        def f(v):
+        def f(v, spread=0.0):  # 0: the plain residual (the robust scale is held constant, its gradient not taken)
             mm = jg.Mesh(vertices=v, faces=m.faces, n_vertices=m.n_vertices, n_faces=m.n_faces)
             r = jg.render(mm, c64, channels=("alpha", "depth"), plan=plan)
-            return photo_consistency(r[..., 1], r[..., 0], c64, p64, c64[nb], p64[nb], nd)[0]
+            return photo_consistency(r[..., 1], r[..., 0], c64, p64, c64[nb], p64[nb], nd, spread=spread)[0]
 
         g = jax.grad(f)(m.vertices)
         assert bool(jnp.all(jnp.isfinite(g)))
@@ -94,6 +95,35 @@ def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, sp
         outward = v - core
         outward /= np.linalg.norm(outward, axis=1, keepdims=True)
         assert float(np.sum(np.asarray(g) * outward)) > 0
+        robust = np.asarray(jax.grad(lambda v: f(v, ROBUST_SPREAD))(m.vertices))  # the default cost
+        assert np.all(np.isfinite(robust)) and float(np.sum(robust * outward)) > 0
+
+
+def test_robust_cost_follows_the_median_and_bounds_outliers():
+    r = jnp.asarray([0.02, 0.03, 0.05, 0.5, 1.0, 3.0])
+    w = jnp.asarray([1.0, 1.0, 1.0, 1.0, 1.0, 0.0])  # the last window is not valid
+    c = ROBUST_SPREAD * 0.05  # the median of the valid residuals is 0.05
+    cost = np.asarray(robust_cost(r, w))
+    np.testing.assert_allclose(cost[:5], c * r[:5] / (r[:5] + c), rtol=1e-5)
+    assert np.all(np.diff(cost[:5]) > 0) and np.all(cost <= c + 1e-7)
+    slope = np.asarray(jax.grad(lambda x: jnp.sum(robust_cost(x, w)))(r))
+    assert slope[0] > 0.6 and slope[4] < 0.01  # a fitting window pulls nearly as its residual, an outlier hardly
+    np.testing.assert_allclose(np.asarray(robust_cost(r, w, spread=0.0)), np.clip(r, 0.0, 1.0))
+    none = robust_cost(r, jnp.zeros_like(w))  # no valid window: scale spread x 1, finite
+    assert np.all(np.isfinite(np.asarray(none)))
+
+
+def test_highlights_in_some_views_leave_the_minimum_at_the_surface(scene):
+    """A specular highlight (a saturated blob in 6 views that no neighbour shares) must not move the
+    minimum off the true surface, nor give NaN."""
+    cams, photos, table = scene
+    v, u = np.mgrid[0:96, 0:96]
+    blob = np.exp(-((u - 40.0) ** 2 + (v - 52.0) ** 2) / (2 * 6.0**2))[..., None]
+    shiny = np.asarray(photos).copy()
+    shiny[::4, ..., :3] = np.minimum(shiny[::4, ..., :3] + 2.0 * blob * shiny[::4, ..., 3:4], shiny[::4, ..., 3:4])
+    shiny = jnp.asarray(shiny)
+    losses = {s: float(_loss(torus(1.0, 0.35 * s, 64, 32), cams, shiny, table)[0]) for s in (0.95, 1.0, 1.05)}
+    assert all(np.isfinite(list(losses.values()))) and losses[1.0] < min(losses[0.95], losses[1.05]), losses
 
 
 def test_nothing_to_work_with_gives_zero_not_nan(scene):

@@ -5,7 +5,7 @@ large-steps solves, uniform Adam, and `optimize_block`. Depends on `geometry` an
 from jaxgenus.optim._adam import GradientTransformation, UniformAdamState, uniform_adam
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._compilations import count_compilations
-from jaxgenus.optim._consistency import consistency_windows, photo_consistency, view_neighbours
+from jaxgenus.optim._consistency import ROBUST_SPREAD, consistency_windows, photo_consistency, robust_cost, view_neighbours
 from jaxgenus.optim._containment import containment_penalty, outside_distance
 from jaxgenus.optim._largesteps import (
     SolveInfo,
@@ -40,7 +40,9 @@ __all__ = [
     "UniformAdamState",
     "carving_term",
     "consistency_windows",
+    "ROBUST_SPREAD",
     "photo_consistency",
+    "robust_cost",
     "view_neighbours",
     "containment_penalty",
     "count_compilations",

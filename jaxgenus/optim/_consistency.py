@@ -12,7 +12,10 @@ rasterizer's blended depth) and the sampling positions; pixels that the
 neighbour does not see (its own depth render, held constant, is nearer), that
 leave its image or its mask, and windows without texture (std below
 `MIN_STD`) count for nothing. Textureless parts are left to the silhouette and
-shading terms. This is the mesh-refinement idea of Vu et al. 2012 and
+shading terms. A window costs `robust_cost` of its residual `1 - NCC`:
+the residual while it is small next to the median residual, bounded where it is
+not, so the few windows that cannot match even on the true surface do not shake
+it (docs/photometric.md). This is the mesh-refinement idea of Vu et al. 2012 and
 Delaunoy & Pollefeys 2014, written here for the soft rasterizer.
 
 `view_neighbours` picks, for every view, the views that see the object from
@@ -30,13 +33,16 @@ from jaxtyping import Array, Float, Int
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim._pyramid import scaled_cameras
 
-__all__ = ["MIN_STD", "consistency_windows", "photo_consistency", "view_neighbours"]
+__all__ = ["MIN_STD", "ROBUST_SPREAD", "consistency_windows", "photo_consistency", "robust_cost", "view_neighbours"]
 
 #: Windows whose reference photo varies less than this (std of the grey level in [0, 1]) carry no texture.
 MIN_STD = 0.03
 _LUMA = (0.299, 0.587, 0.114)
 _OCCLUSION = 0.015  # relative depth tolerance of the visibility test
 _COVER = 0.99  # pixels whose rendered coverage is below this sit on a contour: their depth is blended
+#: The scale of `robust_cost`: this many times the median window residual.
+ROBUST_SPREAD = 2.0
+_MIN_SCALE = 1e-3
 
 
 def view_neighbours(cameras: Cameras, centre=(0.0, 0.0, 0.0), *, count: int = 4, min_angle: float = 5.0,
@@ -197,9 +203,27 @@ def _pooled(x):
     return x.reshape((k, (h + 1) // 2, 2, (w + 1) // 2, 2) + x.shape[3:]).mean(axis=(2, 4))
 
 
+def robust_cost(residual: Float[Array, "..."], weight: Float[Array, "..."], spread: float = ROBUST_SPREAD
+                ) -> Float[Array, "..."]:
+    """`c r / (r + c)` of each window's `residual = 1 - NCC` (clipped to [0, 1]), with the scale `c`
+    `spread` times the median residual of the windows where `weight > 0` (held constant; 1 where
+    there are none). A window that fits pulls as `r` does; one far off (an occlusion the depth test
+    missed, a highlight, a grazing window whose texture the two views foreshorten differently)
+    pulls ever less, as `(c / (r + c))^2`, and costs at most `c`. The scale follows the fit: wide
+    while the surface is pixels off (every window then carries signal), narrow near the surface,
+    where those outliers are what is left. `spread <= 0`: the residual itself."""
+    r = jnp.clip(residual, 0.0, 1.0)
+    if spread <= 0:
+        return r
+    median = jnp.nanmedian(jnp.where(weight > 0, jax.lax.stop_gradient(r), jnp.nan))
+    c = jnp.maximum(spread * jnp.where(jnp.isfinite(median), median, 1.0), _MIN_SCALE)
+    return c * r / (r + c)
+
+
 def photo_consistency(depth, alpha, ref_cams: Cameras, ref_photos, nb_cams: Cameras, nb_photos, nb_depth, *,
-                      window: int = 7, scales: int = 2) -> tuple[Float[Array, ""], Float[Array, ""]]:
-    """`(loss, windows)`: the mean over the valid windows of `min(1 - NCC, 1)` (0 when there are
+                      window: int = 7, scales: int = 2,
+                      spread: float = ROBUST_SPREAD) -> tuple[Float[Array, ""], Float[Array, ""]]:
+    """`(loss, windows)`: the mean over the valid windows of their `robust_cost` (0 when there are
     none) and how many windows were valid (`consistency_windows` for the arguments), averaged over
     `scales` levels of a 2 x 2 pyramid of the depth, coverage and photos: the coarser levels see
     texture twice as wide, so a surface a few pixels off still finds its way."""
@@ -212,6 +236,6 @@ def photo_consistency(depth, alpha, ref_cams: Cameras, ref_photos, nb_cams: Came
         ncc, weight = consistency_windows(depth, alpha, ref_cams, ref_photos, nb_cams, nb_photos, nb_depth,
                                           window=window)
         count = jnp.sum(weight)
-        losses.append(jnp.sum(weight * jnp.minimum(1.0 - ncc, 1.0)) / jnp.maximum(count, 1.0))
+        losses.append(jnp.sum(weight * robust_cost(1.0 - ncc, weight, spread)) / jnp.maximum(count, 1.0))
         counts.append(count)
     return sum(losses) / scales, counts[0]

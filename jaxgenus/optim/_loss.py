@@ -67,10 +67,11 @@ class LossWeights:
             resolution (docs/reconstruction.md).
         carve: `carving_term` (normal maps only; value 0, a force). Off here; `reconstruct`
             sets it in refits (`ReconstructOptions.refit_carve`).
-        consistency: multi-view photo-consistency of photo targets (`photo_consistency`: mean
-            `1 - NCC` over textured windows, each view against a neighbour through the rendered
-            depth); used when `objective` is given `neighbours`. Off by default: it raised
-            held-out PSNR on a real capture but cost accuracy on synthetic ray-cast photos
+        consistency: multi-view photo-consistency of photo targets (`photo_consistency`: the
+            mean robust cost of `1 - NCC` over textured windows, each view against a neighbour
+            through the rendered depth); used when `objective` is given `neighbours`. Off by
+            default: it raised held-out PSNR on a real capture, but on synthetic ray-cast
+            photos it does not beat silhouettes alone and at 1 broke one shape's first cycle
             (docs/photometric.md, "Photo-consistency").
     """
 
