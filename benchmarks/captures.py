@@ -32,6 +32,10 @@ import sys
 import time
 from pathlib import Path
 
+# The fits run in child processes; this one only evaluates. On a GPU it must not take 75 % of the
+# device's memory as its pool first (the child's fit then ran out of memory loading a kernel).
+os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+
 import numpy as np
 from _report import publish, pyplot
 

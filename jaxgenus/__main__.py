@@ -327,7 +327,7 @@ def main(argv=None) -> int:
                    "from the camera where its normals contradict the images, with this weight (default 1; 0: off; "
                    "ReconstructOptions.refit_carve)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
-    r.add_argument("--photo-consistency", type=float, metavar="W", help="photo targets: photo-consistency weight (0: off)")
+    r.add_argument("--photo-consistency", type=float, metavar="W", help="photo targets: photo-consistency weight (default 1; 0: off)")
     r.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "
                         "learning_rate=0.05 --option adaptive=True --option sigma=0.03 (repeatable; applied last)")

@@ -117,6 +117,16 @@ def raycast(cams, mesh, *, supersample: int = 1) -> np.ndarray:
     return out
 
 
+def raycast_depth(cams, mesh) -> np.ndarray:
+    """`(N, H, W)` float64: the camera-space depth (z) of the first hit at each pixel centre, 0 where none."""
+    R, t, _, h, w = camera_arrays(cams)
+    out = np.zeros((len(cams), int(h), int(w)))
+    for n, (_, tri, points, _) in enumerate(_first_hits(cams, mesh, 1)):
+        z = points @ R[n][2] + t[n][2]
+        out[n] = np.where(tri >= 0, z, 0.0).reshape(int(h), int(w))
+    return out
+
+
 def raycast_lambert(cams, mesh, *, light_direction, ambient: float = 0.3, albedo=(0.7, 0.7, 0.7),
                     supersample: int = 1) -> np.ndarray:
     """`(N, H, W, 4)` float32 RGBA photos of a matte `mesh` under one directional light, by ray casting.

@@ -10,7 +10,7 @@ import jaxgenus as jg
 from jaxgenus.optim import (ROBUST_SPREAD, consistency_windows, optimize_block, init_optimizer_state, photo_consistency,
                             robust_cost, view_neighbours)
 from _meshes import torus, torus_trimesh
-from _raycast import raycast_lambert
+from _raycast import raycast_depth, raycast_lambert
 
 LIGHT = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
 
@@ -171,3 +171,33 @@ def test_reconstruct_with_photo_consistency_reports_residuals(scene):
     off = jg.reconstruct(straight, cams, 1, targets="photo", options=opts.updated(consistency=0.0),
                          key=jax.random.key(0))
     assert off.history["photo_consistency"] is None and np.all(np.asarray(off.history["consistency"]) == 0)
+
+
+def test_occluding_contours_inside_the_silhouette_are_left_out():
+    """Where the torus's near tube hides its far tube, the depth steps inside the silhouette; there
+    the rendered depth blends both tubes and the term would move the contour sideways. The pixels
+    next to the steps of trimesh's ray-cast depth are left out; the smooth surface away from them
+    (grazing parts included) is kept."""
+    from scipy import ndimage
+
+    from jaxgenus.optim._consistency import _depth_steps
+
+    tm = torus_trimesh(1.0, 0.35, 96, 48)
+    cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=96)
+    truth = raycast_depth(cams, tm)
+    hit = truth > 0
+    jump = np.zeros_like(hit)
+    for axis in (1, 2):
+        a, b = np.swapaxes(truth, axis, -1)[..., :-1], np.swapaxes(truth, axis, -1)[..., 1:]
+        j = (a > 0) & (b > 0) & (np.abs(a - b) > 0.05 * np.minimum(a, b))
+        j = np.swapaxes(np.concatenate([j, np.zeros_like(j[..., :1])], -1), axis, -1)
+        jump |= j | np.roll(j, 1, axis=axis)
+    r = jg.render(torus(1.0, 0.35, 96, 48), cams, channels=("alpha", "depth"))
+    alpha, depth = np.asarray(r[..., 0]), np.asarray(r[..., 1]) / np.maximum(np.asarray(r[..., 0]), 0.99)
+    inner = ndimage.binary_erosion(alpha >= 0.99, np.ones((1, 5, 5)))  # what the term uses before this test
+    steps = np.asarray(_depth_steps(jnp.asarray(depth)))
+    on = jump & inner
+    away = inner & ~ndimage.binary_dilation(jump, np.ones((1, 7, 7)))
+    assert on.sum() > 100, on.sum()  # the scene has inner contours
+    assert steps[on].mean() > 0.95, steps[on].mean()
+    assert steps[away].mean() < 0.03, steps[away].mean()

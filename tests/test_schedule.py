@@ -61,13 +61,13 @@ def test_detail_floor_follows_the_face_budget():
     silhouettes alike (without the consistency); normal maps are not floored."""
     sphere = jg.Mesh.from_numpy(*(np.asarray(a) for a in _icosphere()))
     setup = types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"), pixel=0.001)
-    opts = jg.ReconstructOptions()
+    opts = jg.ReconstructOptions().updated(consistency=0.0)
     assert _schedule.detail_floor(setup, opts, sphere) == 16
     assert _schedule.detail_floor(setup, opts.updated(max_faces=48000), sphere) == 8
     assert _schedule.detail_floor(types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"), pixel=0.1),
                                  opts, sphere) == 1
     setup.cams = [None] * 8
-    assert _schedule.detail_floor(setup, opts.updated(consistency=1.0), sphere) == 8  # a quarter edge
+    assert _schedule.detail_floor(setup, jg.ReconstructOptions(), sphere) == 8  # a quarter edge (consistency: default)
     setup.targets.kind = "silhouette"
     assert _schedule.detail_floor(setup, opts, sphere) == 16
     assert _schedule.detail_floor(setup, opts.updated(consistency=1.0), sphere) == 16  # photos only

@@ -171,4 +171,5 @@ def test_photo_consistency_on_several_devices_is_reported_not_dropped_silently()
     (line,) = _device_warnings(photo, opts, split)
     assert "not used" in line and "4 devices" in line and "--devices 1" in line
     assert _device_warnings(photo, opts, [types.SimpleNamespace(valid=None)]) == []  # one device: it is used
-    assert _device_warnings(photo, ReconstructOptions(), split) == []  # not asked for
+    assert _device_warnings(photo, opts.updated(consistency=0.0), split) == []  # turned off
+    assert len(_device_warnings(photo, ReconstructOptions(), split)) == 1  # on by default: said

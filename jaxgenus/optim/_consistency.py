@@ -10,7 +10,8 @@ offset between the views (exposure, white balance, a light that brightens one
 view). The gradient reaches the vertices through the depth (the soft
 rasterizer's blended depth) and the sampling positions; pixels that the
 neighbour does not see (its own depth render, held constant, is nearer), that
-leave its image or its mask, and windows without texture (std below
+leave its image or its mask, that lie next to an occluding contour inside the
+silhouette (a step in the depth), and windows without texture (std below
 `MIN_STD`) count for nothing. Textureless parts are left to the silhouette and
 shading terms. A window costs `robust_cost` of its residual `1 - NCC`:
 the residual while it is small next to the median residual, bounded where it is
@@ -40,6 +41,11 @@ MIN_STD = 0.03
 _LUMA = (0.299, 0.587, 0.114)
 _OCCLUSION = 0.015  # relative depth tolerance of the visibility test
 _COVER = 0.99  # pixels whose rendered coverage is below this sit on a contour: their depth is blended
+# Inside the silhouette, an occluding contour blends the depths of the near and the far surface: moving
+# it sideways changes the blended depth, so NCC there would push limbs sideways, where no silhouette
+# holds them (mother_child: a leg pushed out, CD 0.0263). Pixels next to a depth step this large
+# (relative) are left out (docs/photometric.md, "Occluding contours").
+_DEPTH_STEP = 0.02
 #: The scale of `robust_cost`: this many times the median window residual.
 ROBUST_SPREAD = 2.0
 _MIN_SCALE = 1e-3
@@ -162,6 +168,19 @@ def _window_sums(x, window: int, stride: int):
     return jax.lax.reduce_window(x, 0.0, jax.lax.add, (1, window, window), (1, stride, stride), "VALID")
 
 
+def _depth_steps(depth):
+    """`(K, H, W)` bool: pixels within one pixel of a step in the depth `(K, H, W)`, where the second
+    difference of the inverse depth (affine in the pixel on a plane, however grazing) exceeds
+    `_DEPTH_STEP` times the inverse depth (an occluding contour inside the silhouette: a limb in
+    front of the body)."""
+    inv = 1.0 / jnp.maximum(depth, 1e-6)
+    p = jnp.pad(inv, ((0, 0), (1, 1), (1, 1)), mode="edge")
+    d2v = jnp.abs(p[:, 2:, 1:-1] - 2 * p[:, 1:-1, 1:-1] + p[:, :-2, 1:-1])
+    d2u = jnp.abs(p[:, 1:-1, 2:] - 2 * p[:, 1:-1, 1:-1] + p[:, 1:-1, :-2])
+    step = jnp.maximum(d2u, d2v) > _DEPTH_STEP * inv
+    return jax.lax.reduce_window(step, False, jax.lax.bitwise_or, (1, 3, 3), (1, 1, 1), "SAME")
+
+
 def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W"], ref_cams: Cameras,
                         ref_photos: Float[Array, "K H W 4"], nb_cams: Cameras, nb_photos: Float[Array, "K h w 4"],
                         nb_depth: Float[Array, "K s t 2"], *, window: int = 7) -> tuple[Array, Array]:
@@ -177,6 +196,7 @@ def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W
     # away from the contours: there the depth is blended across the rim and the surface grazes the ray
     covered = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
     depth = depth / jnp.maximum(cover, _COVER)  # the render composites depth over 0 with its coverage
+    covered = covered & ~_depth_steps(jax.lax.stop_gradient(depth))
     cam = lambda c: (c.rotation, c.translation, c.focal, c.principal_point)
     a, b, valid = jax.vmap(_warp_one)(depth, covered, cam(ref_cams), ref_grey, cam(nb_cams), nb_grey, nb_depth)
     m = valid.astype(depth.dtype)

@@ -67,7 +67,7 @@ def _estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
 
 
 def _device_warnings(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[str]:
-    """Photo-consistency asked for while the views are split over devices, where it is not computed."""
+    """Photo-consistency (on by default for photos) while the views are split over devices, where it is not computed."""
     if setup.targets.kind != "photo" or options.optimize.weights.consistency <= 0 or levels[0].valid is None:
         return []
     n = int(levels[0].valid.sharding.mesh.size)
