@@ -71,7 +71,7 @@ class LossWeights:
             mean robust cost of `1 - NCC` over textured windows, each view against a neighbour
             through the rendered depth); used when `objective` is given `neighbours`
             (`reconstruct` gives them to photo targets on one device). Weight 1: on a real
-            capture it raised held-out PSNR by 1 dB over photos alone, and on ray-cast photos of
+            capture it raised held-out PSNR by 0.6-1 dB over photos alone, and on ray-cast photos of
             two genus-2 shapes it beat photos alone on both (docs/photometric.md, "Photo-consistency").
     """
 
