@@ -118,7 +118,7 @@ def _options(args):
         change["n_cycles"] = args.cycles
     if args.max_faces:
         if opts.remesh is not None:
-            change["max_faces"] = args.max_faces
+            change.update(max_faces=args.max_faces, detail_faces=0)  # the budget given holds
         change["initial_faces"] = min(opts.initial_faces, args.max_faces)
     if args.edge_length:
         change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
@@ -233,7 +233,9 @@ def _reconstruct(args) -> int:
         raise _InputError("give --mesh GT.obj (synthetic targets) or --images PATH --cameras FILE")
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
-        f"{opts.steps_per_cycle} steps, up to {opts.face_budget} faces")
+        f"{opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
+        + (f" (photos that resolve more: up to {opts.detail_faces})" if targets == "photo" and opts.remesh is not None
+           and opts.detail_faces > opts.face_budget else ""))
     rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say,
                          views=views)
     _report(rec, gt)
@@ -326,7 +328,8 @@ def main(argv=None) -> int:
     r.add_argument("--refit-carve", type=float, default=None, help="in refits of normal maps, move the surface away "
                    "from the camera where its normals contradict the images, with this weight (default 1; 0: off; "
                    "ReconstructOptions.refit_carve)")
-    r.add_argument("--max-faces", type=int, default=None, help="face budget (default 12000)")
+    r.add_argument("--max-faces", type=int, default=None, help="face budget, held as given (default 12000; photos fitted with photo-consistency "
+                   "that resolve more get up to 40000)")
     r.add_argument("--photo-consistency", type=float, metavar="W", help="photo targets: photo-consistency weight (default 1; 0: off)")
     r.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "

@@ -48,6 +48,8 @@ def test_cli_settings_map_onto_the_nested_options():
     opts = _options(argparse.Namespace(**base))
     assert opts.optimize.learning_rate == 0.05 and opts.remesh.adaptive and opts.optimize.render.sigma == 0.03
     assert opts.remesh.max_faces == 20000 and opts.optimize.crop == 64 and opts.downsample == 2
+    assert opts.detail_faces == 0  # a budget given is held (no rise from the images)
+    assert _options(argparse.Namespace(**{**base, "max_faces": None})).detail_faces == jg.ReconstructOptions().detail_faces
     assert opts.lighting == "directional" and opts.optimize.adam_quantile == jg.OptimizeOptions().adam_quantile
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000

@@ -35,3 +35,50 @@ def test_one_default_per_setting_and_the_presets():
         jg.ReconstructOptions(remesh=jg.RemeshOptions())
     with pytest.raises(ValueError, match="options.optimize"):
         jg.ReconstructOptions(optimize=dataclasses.asdict(jg.OptimizeOptions()))
+
+
+def test_photos_that_resolve_more_detail_get_a_larger_face_budget():
+    import math
+
+    import numpy as np
+    import trimesh
+
+    from jaxgenus.pipeline._setup import DETAIL_EDGE, detail_budget
+
+    sphere = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    hull = jg.Mesh.from_numpy(sphere.vertices.astype(np.float32), sphere.faces.astype(np.int32))
+    face = lambda pixel: math.sqrt(3.0) / 4.0 * (DETAIL_EDGE * pixel) ** 2
+    pixel_for = lambda faces: math.sqrt(sphere.area / faces / (math.sqrt(3.0) / 4.0)) / DETAIL_EDGE
+    o = jg.ReconstructOptions()
+    budget, resolved = detail_budget(o, "photo", 24, hull, pixel_for(100_000))
+    assert budget == o.detail_faces == 40000 and abs(resolved - sphere.area / face(pixel_for(100_000))) <= 1
+    assert detail_budget(o.updated(max_faces=5000), "photo", 24, hull, pixel_for(25_500))[0] == 25000  # in 1000s
+    # under 4 x max_faces (edges under 8 px at the budget): the photos' finest level is fitted already
+    assert detail_budget(o, "photo", 24, hull, pixel_for(40_000))[0] == 12000
+    assert detail_budget(o, "photo", 24, hull, pixel_for(49_000))[0] == 40000
+    held = [o.updated(detail_faces=0), o.updated(consistency=0.0), o.updated(max_faces=50000)]
+    assert [detail_budget(h, "photo", 24, hull, pixel_for(100_000))[0] for h in held] == [12000, 12000, 50000]
+    assert detail_budget(o, "silhouette", 24, hull, pixel_for(100_000)) == (12000, 0)
+    assert detail_budget(o, "normals", 24, hull, pixel_for(100_000)) == (12000, 0)
+    assert detail_budget(o, "photo", 24, None, pixel_for(100_000)) == (12000, 0)
+    nic = jg.ReconstructOptions.nicolet()
+    assert detail_budget(nic, "photo", 24, hull, pixel_for(100_000)) == (nic.initial_faces, 0)  # no remeshing
+    with pytest.raises(ValueError, match="detail_faces"):
+        jg.ReconstructOptions(detail_faces=-1)
+
+
+def test_a_photo_capture_that_resolves_more_gets_the_budget_from_its_visual_hull():
+    from _raycast import raycast_lambert
+
+    from jaxgenus.pipeline._setup import prepare
+
+    gt = jg.builtin_scene("torus")
+    cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=256)
+    photos = raycast_lambert(cams, gt, light_direction=(0.3, 0.5, 0.8), albedo=(0.6, 0.5, 0.4))
+    options = jg.ReconstructOptions(initial_faces=500).updated(max_faces=2000, detail_faces=5000)
+    said = []
+    setup = prepare(photos, cams, 1, "photo", options, said.append)
+    assert 2000 < setup.options.face_budget <= 5000 and setup.options.detail_faces == 5000
+    assert any(line.startswith(f"face budget: {setup.options.face_budget} faces") for line in said)
+    masks = prepare(photos[..., 3], cams, 1, "silhouette", options, said.append)
+    assert masks.options.face_budget == 2000 and options.face_budget == 2000  # the caller's options unchanged
