@@ -181,6 +181,13 @@ def _captured(args, say, devices):
     return loaded.images, cams, loaded.targets, loaded.views
 
 
+def _plan_line(opts, targets) -> str:
+    """Cycles, steps and the face budget (with the rise photos may get, `detail_faces`)."""
+    more = targets == "photo" and opts.remesh is not None and opts.detail_faces > opts.face_budget
+    return (f"{opts.n_cycles} cycles x {opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
+            + (f" (photos that resolve more: up to {opts.detail_faces})" if more else ""))
+
+
 def _check_outputs(args):
     """Refuse an --out whose mesh or JSON history would overwrite an input file."""
     out = Path(args.out)
@@ -232,10 +239,7 @@ def _reconstruct(args) -> int:
     else:
         raise _InputError("give --mesh GT.obj (synthetic targets) or --images PATH --cameras FILE")
     genus = None if args.genus == "auto" else int(args.genus)
-    say(f"genus: {'estimated from the images' if genus is None else genus}; {opts.n_cycles} cycles x "
-        f"{opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
-        + (f" (photos that resolve more: up to {opts.detail_faces})" if targets == "photo" and opts.remesh is not None
-           and opts.detail_faces > opts.face_budget else ""))
+    say(f"genus: {'estimated from the images' if genus is None else genus}; {_plan_line(opts, targets)}")
     rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say,
                          views=views)
     _report(rec, gt)
@@ -328,8 +332,7 @@ def main(argv=None) -> int:
     r.add_argument("--refit-carve", type=float, default=None, help="in refits of normal maps, move the surface away "
                    "from the camera where its normals contradict the images, with this weight (default 1; 0: off; "
                    "ReconstructOptions.refit_carve)")
-    r.add_argument("--max-faces", type=int, default=None, help="face budget, held as given (default 12000; photos fitted with photo-consistency "
-                   "that resolve more get up to 40000)")
+    r.add_argument("--max-faces", type=int, default=None, help="face budget, held as given (default 12000; photos that resolve more: up to 40000)")
     r.add_argument("--photo-consistency", type=float, metavar="W", help="photo targets: photo-consistency weight (default 1; 0: off)")
     r.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "
