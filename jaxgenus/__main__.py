@@ -136,6 +136,8 @@ def _options(args):
         change["hidden_handles"] = args.hidden_handles
     if getattr(args, "photo_consistency", None) is not None:
         change["consistency"] = args.photo_consistency
+    if getattr(args, "albedo_edges", None) is not None:
+        change["albedo_edges"] = args.albedo_edges
     if args.refits is not None:
         change["refits"] = args.refits
     if args.refit_carve is not None:
@@ -296,6 +298,20 @@ def _add_batch_and_demo(sub) -> None:
     d.set_defaults(run=_demo)
 
 
+def _photo_arguments(r) -> None:
+    """The arguments of `reconstruct` about what the images hold and how photos are fitted."""
+    r.add_argument("--targets", choices=["silhouette", "normals", "photo"],
+                   help="what RGB images hold (default: inferred); photos are fitted through Lambertian shading "
+                        "with an estimated albedo (written as vertex colours, and exactly in OUT.albedo.npy) and light")
+    r.add_argument("--lighting", choices=["sh", "directional"], default=None,
+                   help="photo targets: the lighting model, spherical harmonics (default; any smooth light) or one "
+                        "lamp plus ambient (exact for a single lamp)")
+    r.add_argument("--photo-consistency", type=float, metavar="W", help="photo targets: photo-consistency weight (default 1; 0: off)")
+    r.add_argument("--albedo-edges", type=float, metavar="W",
+                   help="photo targets: weight of the photometric error next to albedo edges (default 1; 0: left out, "
+                        "for a texture finer than the mesh)")
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="jaxgenus", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -314,12 +330,7 @@ def main(argv=None) -> int:
     r.add_argument("--background", choices=["black", "white"], help="threshold masks off a uniform background")
     r.add_argument("--threshold", type=float, default=0.1, help="with --background: a pixel is the object when its "
                    "largest channel differs from the background by more than this (default 0.1); check the masks")
-    r.add_argument("--targets", choices=["silhouette", "normals", "photo"],
-                   help="what RGB images hold (default: inferred); photos are fitted through Lambertian shading "
-                        "with an estimated albedo (written as vertex colours, and exactly in OUT.albedo.npy) and light")
-    r.add_argument("--lighting", choices=["sh", "directional"], default=None,
-                   help="photo targets: the lighting model, spherical harmonics (default; any smooth light) or one "
-                        "lamp plus ambient (exact for a single lamp)")
+    _photo_arguments(r)
     r.add_argument("--hidden-handles", choices=["images", "drill"], default=None,
                    help="handles the silhouettes do not show: open them where the normal images show holes "
                         "(default), or drill small tunnels at spread-out sites")
@@ -333,7 +344,6 @@ def main(argv=None) -> int:
                    "from the camera where its normals contradict the images, with this weight (default 1; 0: off; "
                    "ReconstructOptions.refit_carve)")
     r.add_argument("--max-faces", type=int, default=None, help="face budget, held as given (default 12000; photos that resolve more: up to 40000)")
-    r.add_argument("--photo-consistency", type=float, metavar="W", help="photo targets: photo-consistency weight (default 1; 0: off)")
     r.add_argument("--option", action="append", metavar="NAME=VALUE",
                    help="any setting of ReconstructOptions or of its parts by its own name, e.g. --option "
                         "learning_rate=0.05 --option adaptive=True --option sigma=0.03 (repeatable; applied last)")

@@ -165,3 +165,18 @@ def test_reconstruct_of_a_capture_cut_by_the_frame_starts_close_and_says_so():
     assert rec.history["start"] == "visual_hull"
     assert any("11 of 12 masks touch the image border" in w for w in rec.history["warnings"])
     assert any("touch the image border" in line for line in lines)
+
+
+def test_loss_rise_is_judged_within_cycles_and_over_the_run_except_for_photos():
+    from jaxgenus.pipeline._verdict import _loss_rise
+    nan = np.nan
+    # two cycles of 20 steps: each falls, the second starts higher (a finer level shows more texture)
+    loss = np.concatenate([np.linspace(1.0, 0.5, 20), np.linspace(2.0, 1.6, 20)])
+    time = np.full(40, nan)
+    time[[19, 39]] = [1.0, 2.0]
+    assert _loss_rise(loss, time, whole=False) == ""
+    assert "at the first step" in _loss_rise(loss, time, whole=True)
+    rising = loss.copy()
+    rising[20:] = np.linspace(1.0, 2.0, 20)  # a cycle that ends twice as high as it began
+    assert "cycle 1" in _loss_rise(rising, time, whole=False)
+    assert _loss_rise(np.array([1.0, 0.5]), np.full(2, nan), whole=True) == ""  # no cycle ends known: one cycle

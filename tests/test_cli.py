@@ -51,5 +51,8 @@ def test_cli_settings_map_onto_the_nested_options():
     assert opts.detail_faces == 0  # a budget given is held (no rise from the images)
     assert _options(argparse.Namespace(**{**base, "max_faces": None})).detail_faces == jg.ReconstructOptions().detail_faces
     assert opts.lighting == "directional" and opts.optimize.adam_quantile == jg.OptimizeOptions().adam_quantile
+    assert opts.optimize.weights.albedo_edges == 1.0
+    edges = _options(argparse.Namespace(**{**base, "albedo_edges": 0.0, "photo_consistency": 0.5}))
+    assert edges.optimize.weights.albedo_edges == 0.0 and edges.optimize.weights.consistency == 0.5
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000

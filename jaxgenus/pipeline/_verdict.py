@@ -8,7 +8,9 @@ where the targets are normal maps. The start mesh is scored the same way.
 A run is **not ok** (`ok = False`) when any of these holds, each with a warning:
 
 * the result's genus differs from the requested one;
-* the loss diverged: a non-finite step, or a final loss above 1.5x the first;
+* the loss diverged: a non-finite step, or a loss that ends a cycle above 1.5x where the
+  cycle began (and, except for photos, whose finer levels show more texture, a final loss
+  above 1.5x the first);
 * a view's silhouette IoU is under `min_iou` (a result that does not cover its
   silhouettes, or silhouettes that disagree with each other);
 * a view disagrees with the rest: its IoU is `outlier_gap` below the median of
@@ -175,6 +177,28 @@ class Evidence:
 START_TOLERANCE = {"carved": 0.03, "other": 0.01}
 
 
+def _loss_rise(loss: np.ndarray, time: np.ndarray, *, whole: bool) -> str:
+    """Where the loss ended above 1.5x where it began ("" where nowhere): within a cycle (the mean of
+    its last steps against its first, a fifth of them up to 10, over the views each samples), and
+    with `whole` over the run (its last step against its first). Photo targets check only within
+    cycles: a finer level shows texture a coarser one averaged away, so their loss grows between
+    levels when all is well."""
+    ends = np.flatnonzero(np.isfinite(time))
+    if len(ends) == 0 or ends[-1] != len(loss) - 1:
+        ends = np.append(ends, len(loss) - 1)
+    start = 0
+    for c, end in enumerate(ends):
+        part = loss[start:end + 1]
+        k = max(1, min(10, len(part) // 5))
+        first, last = float(np.mean(part[:k])), float(np.mean(part[-k:]))
+        if np.isfinite(first) and last > 1.5 * first:
+            return f"{first:.4g} over the first steps of cycle {c}, {last:.4g} over its last"
+        start = end + 1
+    if whole and np.isfinite(loss[0]) and loss[-1] > 1.5 * loss[0]:
+        return f"{loss[0]:.4g} at the first step, {loss[-1]:.4g} at the last"
+    return ""
+
+
 def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
     """Score the result and the start against the targets and decide (see the module doc), with the
     thresholds of `options` (`min_view_iou`, `outlier_gap`, `max_photo_error`) and its renderer's `sigma`."""
@@ -195,8 +219,9 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
     bad_steps = int(np.sum(np.asarray(steps["status"]) == 2))
     if bad_steps:
         fail.append(f"the loss diverged: {bad_steps} non-finite steps were skipped")
-    if np.isfinite(loss[0]) and loss[-1] > 1.5 * loss[0]:
-        fail.append(f"the loss diverged: {loss[0]:.4g} at the first step, {loss[-1]:.4g} at the last")
+    rise = _loss_rise(loss, np.asarray(steps.get("time", np.full(len(loss), np.nan))), whole=targets.kind != "photo")
+    if rise:
+        fail.append(f"the loss diverged: {rise}")
     low = [i for i, x in enumerate(iou) if x < min_iou]
     if low:
         fail.append(f"silhouette IoU under {min_iou} in views {low} (min {min(iou):.3f}): the result does not "
