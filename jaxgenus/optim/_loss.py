@@ -78,7 +78,7 @@ class LossWeights:
             (`albedo_edges`: a jump in colour that shading does not make), where a face's blended
             albedo cannot follow the photo. 1 (default) keeps them as they are; 0 leaves them out,
             which suits a texture finer than the mesh holds (on ray-cast photos of 10 px colour cells,
-            CD 0.00300 -> 0.00219) but not a real capture whose albedo the mesh follows (DTU scan65
+            CD 0.00300 -> 0.00214) but not a real capture whose albedo the mesh follows (DTU scan65
             at 1/4 size 23.51 -> 23.06 dB held-out PSNR; docs/photometric.md, "Albedo edges").
     """
 
