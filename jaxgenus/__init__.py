@@ -61,6 +61,7 @@ from jaxgenus.rendering import (
     RenderInfo,
     RenderSettings,
     static_plan,
+    vertex_colors,
 )
 from jaxgenus.capture import (
     load_cameras,
@@ -192,6 +193,7 @@ __all__ = [
     "static_plan",
     "to_differential",
     "uniform_adam",
+    "vertex_colors",
     "uniform_laplacian",
     "UniformAdamState",
     "UniformLaplacian",

@@ -138,6 +138,10 @@ def _options(args):
         change["consistency"] = args.photo_consistency
     if getattr(args, "albedo_edges", None) is not None:
         change["albedo_edges"] = args.albedo_edges
+    if getattr(args, "shading", None) is not None:
+        change["shading"] = args.shading
+    if getattr(args, "shading_ratio", None) is not None:  # 0: off, also for fine textures
+        change.update(shading_ratio=args.shading_ratio, **({} if args.shading_ratio else {"texture_ratio": 0.0}))
     if args.refits is not None:
         change["refits"] = args.refits
     if args.refit_carve is not None:
@@ -310,6 +314,11 @@ def _photo_arguments(r) -> None:
     r.add_argument("--albedo-edges", type=float, metavar="W",
                    help="photo targets: weight of the photometric error next to albedo edges (default 1; 0: left out, "
                         "for a texture finer than the mesh)")
+    r.add_argument("--shading", choices=["flat", "smooth"], default=None,
+                   help="photo targets: a colour per face, or per vertex interpolated over the faces (smooth)")
+    r.add_argument("--shading-ratio", type=float, metavar="W",
+                   help="photo targets: weight of the albedo-free shading term (log ratios of nearby pixels; default: "
+                        "6 for photos of a fine texture, else off; 0: off)")
 
 
 def main(argv=None) -> int:

@@ -1,4 +1,4 @@
-"""Albedo edges (jaxgenus.optim._albedo_edges): the photometric term leaves out what a face's albedo cannot hold."""
+"""Albedo edges (jaxgenus.optim._intrinsic): the photometric term leaves out what a face's albedo cannot hold."""
 
 import numpy as np
 import pytest

@@ -54,5 +54,10 @@ def test_cli_settings_map_onto_the_nested_options():
     assert opts.optimize.weights.albedo_edges == 1.0
     edges = _options(argparse.Namespace(**{**base, "albedo_edges": 0.0, "photo_consistency": 0.5}))
     assert edges.optimize.weights.albedo_edges == 0.0 and edges.optimize.weights.consistency == 0.5
+    assert opts.optimize.render.shading == "flat"
+    smooth = _options(argparse.Namespace(**{**base, "shading": "smooth", "shading_ratio": 2.5}))
+    assert smooth.optimize.render.shading == "smooth" and smooth.optimize.weights.shading_ratio == 2.5
+    assert smooth.texture_ratio == jg.ReconstructOptions().texture_ratio
+    assert _options(argparse.Namespace(**{**base, "shading_ratio": 0.0})).texture_ratio == 0.0  # off, textures too
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000

@@ -93,8 +93,34 @@ def test_render_photo_matches_shading_of_raycast_normals():
     assert np.median(err) < 1e-3 and np.quantile(err, 0.95) < 0.05
 
 
-@pytest.mark.parametrize("model", ["sh", "directional"])
-def test_photo_loss_gradient_matches_central_differences(model):
+def test_smooth_shading_matches_raycast_smooth_normals():
+    """`shading="smooth"` (Gouraud) against photos ray cast by trimesh with the normal interpolated at
+    each hit point under the exact lamp: errors a fraction of flat shading's, which steps at edges."""
+    mesh = jg.builtin_scene("torus")
+    cams = jg.sphere_cameras(4, radius=3.0, resolution=64)
+    d, amb, rho = (0.3, -0.5, 0.8), 0.3, np.array([0.8, 0.5, 0.3])
+    lt, m = jg.directional_lighting(d, amb, model="directional")
+    albedo = jnp.broadcast_to(jnp.asarray(m * rho, jnp.float32), (mesh.vertex_capacity, 3))
+    ref = raycast_lambert(cams, mesh, light_direction=d, ambient=amb, albedo=tuple(rho))
+    errs = {}
+    for shading in ("flat", "smooth"):
+        img = np.asarray(jg.render_photo(mesh, cams, albedo, lt, sigma=0.02, gamma=1e-3, shading=shading))
+        inside = np.ones(ref.shape[:3], bool)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                inside &= np.roll(ref[..., 3] > 0.5, (di, dj), (1, 2)) & np.roll(img[..., 3] > 0.999, (di, dj), (1, 2))
+        assert inside.sum() > 4000
+        errs[shading] = np.abs(img[..., :3] - ref[..., :3])[inside]
+    assert np.median(errs["smooth"]) < 5e-4 and np.quantile(errs["smooth"], 0.95) < 0.01
+    assert np.quantile(errs["smooth"], 0.95) < 0.3 * np.quantile(errs["flat"], 0.95)
+    with pytest.raises(ValueError, match="shading"):
+        jg.render_photo(mesh, cams, albedo, lt, shading="phong")
+    with pytest.raises(ValueError, match="shading"):
+        jg.RenderSettings(shading="phong")
+
+
+@pytest.mark.parametrize("model,shading", [("sh", "flat"), ("directional", "flat"), ("sh", "smooth")])
+def test_photo_loss_gradient_matches_central_differences(model, shading):
     jax.config.update("jax_enable_x64", True)
     try:
         mesh = jg.builtin_scene("torus")
@@ -110,7 +136,8 @@ def test_photo_loss_gradient_matches_central_differences(model):
 
         def f(x, a, light):
             m = jg.Mesh(x, mesh.faces, mesh.n_vertices, mesh.n_faces)
-            return jg.objective(m, cams, target, x, weights=w, appearance=(a, light))[0]
+            return jg.objective(m, cams, target, x, weights=w, appearance=(a, light),
+                                render_settings=jg.RenderSettings(shading=shading))[0]
 
         args = (mesh.vertices, albedo, jnp.asarray(lt, jnp.float64))
         grads = jax.grad(f, argnums=(0, 1, 2))(*args)
@@ -146,6 +173,11 @@ def test_render_rejects_bad_face_colors_and_photo_needs_rgba():
         jg.render(mesh, cams, channels=("alpha", "color"))
     with pytest.raises(ValueError, match="face_colors"):
         jg.render(mesh, cams, channels=("alpha", "color"), face_colors=jnp.zeros((3, 3)))
+    with pytest.raises(ValueError, match="vertex_colors"):
+        jg.render(mesh, cams, channels=("alpha", "color"), vertex_colors=jnp.zeros((3, 3)))
+    with pytest.raises(ValueError, match="not both"):
+        jg.render(mesh, cams, channels=("alpha", "color"), face_colors=jnp.zeros((mesh.face_capacity, 3)),
+                  vertex_colors=jnp.zeros((mesh.vertex_capacity, 3)))
     with pytest.raises(ValueError, match="albedo"):
         jg.init_optimizer_state(mesh, jax.random.key(0), albedo=(-0.1, 0.5, 0.5))
     with pytest.raises(ValueError, match="photo targets"):

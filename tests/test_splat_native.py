@@ -18,8 +18,9 @@ from _meshes import icosphere
 pytestmark = pytest.mark.usefixtures("cpu_device")
 
 RES = 24
-# (attrs, want_depth): cov only; cov + normal; cov + normal + shaded + depth
-CHANNELS = [((), False), (("normal",), False), (("normal", "shaded"), True)]
+# (attrs, want_depth): cov only; cov + normal; cov + normal + shaded + depth; a colour interpolated
+# over the faces (per-vertex colours: every attribute a clamped plane) + normal + depth
+CHANNELS = [((), False), (("normal",), False), (("normal", "shaded"), True), (("normal", "color"), True)]
 
 
 def _scene(dtype, attrs, want_depth, sigma=0.7, gamma=0.02):
@@ -27,15 +28,19 @@ def _scene(dtype, attrs, want_depth, sigma=0.7, gamma=0.02):
     mesh = jg.Mesh(mesh.vertices.astype(dtype), mesh.faces, mesh.n_vertices, mesh.n_faces)
     # close cameras: the sphere overflows the 24 x 24 image, so faces are partly off-image
     cams = jg.sphere_cameras(3, radius=2.6, fov_deg=45.0, resolution=RES)
+    smooth = "color" in attrs
+    colors = jnp.asarray(np.random.default_rng(5).uniform(0.1, 0.9, (mesh.vertex_capacity, 3)), dtype)
     fs = _faces.face_setup(
-        mesh, cams, sigma=sigma, znear=1e-4, cull=True, attrs=attrs, light=None, ambient=0.3
+        mesh, cams, sigma=sigma, znear=1e-4, cull=True, attrs=attrs, light=None, ambient=0.3,
+        vertex_colors=colors if smooth else None,
     )
     n_attr = sum(jg.rendering.CHANNEL_SIZES[a] for a in attrs)
     bg = tuple(0.1 * (i + 1) for i in range(n_attr + int(want_depth)))
     cfg = SplatConfig(
         height=RES, width=RES, windows=(RES,), sigma=sigma, gamma=gamma, want_cov=True,
-        n_attr=n_attr, want_depth=want_depth, background=bg,
+        n_attr=n_attr, want_depth=want_depth, background=bg, attr_planes=smooth,
     )
+    assert fs.attr.shape[-1] == n_attr * (5 if smooth else 1)
     tier = Tier(fs.v, fs.plane, fs.qrange, fs.attr, fs.logw, fs.valid, jnp.zeros(fs.origin.shape, jnp.int32))
     return cfg, tier, fs.dconst
 
@@ -128,7 +133,8 @@ def test_bad_shapes_raise_clear_errors():
            jax.ShapeDtypeStruct((3, RES, RES), jnp.float32))
     call = jax.ffi.ffi_call("jaxgenus_raster_forward", out)
     attrs = dict(height=np.int64(RES), width=np.int64(RES), sigma=np.float64(0.5), gamma=np.float64(0.01),
-                 sharpness=np.float64(1.0), want_cov=np.int64(1), n_attr=np.int64(3), want_depth=np.int64(0),
+                 sharpness=np.float64(1.0), want_cov=np.int64(1), n_attr=np.int64(3), attr_planes=np.int64(0),
+                 want_depth=np.int64(0),
                  background=np.zeros(3))
     with pytest.raises(Exception, match="qrange"):
         jax.block_until_ready(call(tier.v, tier.plane, tier.plane, tier.attr, tier.logw, tier.valid, dconst, **attrs))

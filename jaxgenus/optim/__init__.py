@@ -2,7 +2,8 @@
 large-steps solves, uniform Adam, and `optimize_block`. Depends on `geometry` and `rendering`.
 """
 
-from jaxgenus.optim._albedo_edges import EDGE_LOG_RATIO, albedo_edges
+from jaxgenus.optim._intrinsic import (EDGE_LOG_RATIO, RATIO_BAND, RATIO_OFFSET, RATIO_SCALE, albedo_edges,
+                                      shading_ratio_cost)
 from jaxgenus.optim._adam import GradientTransformation, UniformAdamState, uniform_adam
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._compilations import count_compilations
@@ -32,7 +33,11 @@ from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_ca
 __all__ = [
     "Appearance",
     "EDGE_LOG_RATIO",
+    "RATIO_BAND",
+    "RATIO_OFFSET",
+    "RATIO_SCALE",
     "albedo_edges",
+    "shading_ratio_cost",
     "GradientTransformation",
     "LossWeights",
     "OptimizeOptions",

@@ -31,12 +31,12 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from jaxgenus.optim._albedo_edges import albedo_edges
+from jaxgenus.optim._intrinsic import RATIO_BAND, albedo_edges, shading_ratio_cost
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._consistency import photo_consistency
 from jaxgenus.optim._containment import containment_penalty
-from jaxgenus.geometry import bilaplacian_energy, inversion_penalty
-from jaxgenus.rendering import RenderSettings, face_colors, render
+from jaxgenus.geometry import bilaplacian_energy, inversion_penalty, vertex_normals
+from jaxgenus.rendering import RenderSettings, irradiance, render, shading_colors
 
 __all__ = ["CLIP_LOW", "CLIP_HIGH", "LossWeights", "albedo_smoothness", "image_loss", "image_terms", "objective",
            "render_channels"]
@@ -80,6 +80,12 @@ class LossWeights:
             which suits a texture finer than the mesh holds (on ray-cast photos of 10 px colour cells,
             CD 0.00300 -> 0.00214) but not a real capture whose albedo the mesh follows (DTU scan65
             at 1/4 size 23.51 -> 23.06 dB held-out PSNR; docs/photometric.md, "Albedo edges").
+        shading_ratio: photo targets: `shading_ratio_cost`, the log ratios of nearby pixels of the
+            photo against those of the smoothly shaded irradiance at the mesh's normals (albedo-free;
+            one more render a step), over the pairs near an albedo edge (`RATIO_BAND`). 0 here;
+            `reconstruct` sets 6 for photos of a fine texture (`ReconstructOptions.texture_ratio`),
+            where it took ray-cast 10-px colour cells from 1.33x to about 1x the silhouette-only CD;
+            on smooth albedos it costs (docs/photometric.md, "Shading ratios").
     """
 
     alpha: float = 1.0
@@ -92,6 +98,7 @@ class LossWeights:
     carve: float = 0.0
     consistency: float = 1.0
     albedo_edges: float = 1.0
+    shading_ratio: float = 0.0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -168,11 +175,21 @@ def image_loss(
     return sum(terms.values(), jnp.zeros((), rendered.dtype))
 
 
+def _shading_ratio(mesh, renderer, kw, cameras, target, lighting):
+    """`shading_ratio_cost` of the render of the irradiance at the vertex normals (interpolated), over the
+    pairs near an albedo edge (`RATIO_BAND`)."""
+    kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
+    e = jnp.maximum(irradiance(vertex_normals(mesh), lighting), 0.0)
+    img = renderer(mesh, cameras, channels=("alpha", "color"), vertex_colors=e, **kw)
+    near = albedo_edges(target, band=RATIO_BAND)  # where the albedo cannot follow the photo
+    return shading_ratio_cost(img[..., 0], img[..., 1:4], target, where=near)[0]
+
+
 def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours):
     """The photo-consistency loss of the views against their neighbours (the neighbours' depth constant)."""
     nb_cams, nb_photos = neighbours
     fixed = jax.tree.map(jax.lax.stop_gradient, mesh)
-    kw = {k: v for k, v in kw.items() if k != "face_colors"}
+    kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
     nb_depth = jax.lax.stop_gradient(renderer(fixed, nb_cams, channels=("depth", "alpha"), **kw))
     loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth)
     return loss
@@ -199,7 +216,8 @@ def objective(
     `(total, terms)` where `terms` holds the weighted `alpha`, `normal`,
     `bilaplacian` and `inversion` values that were computed (weight 0: absent).
     `appearance=(albedo (Vcap, 3), lighting (3, 24) or (3, 3))`: `target` is a photo, fitted
-    through Lambertian face colours (`photo` and `albedo_smoothness` terms).
+    through Lambertian colours, flat or smooth as `render_settings.shading` says (`photo` and
+    `albedo_smoothness` terms).
     `outside`: the targets' `outside_distance` maps (`(N, H, W)`, pixels), for the
     `containment` term (`jaxgenus.optim._containment`); None skips it.
     `neighbours=(cameras, photos)`: photo targets: one neighbour view per view of `cameras` and
@@ -212,9 +230,12 @@ def objective(
     terms = {}
     if photo:
         albedo, lighting = appearance
-        kw["face_colors"] = face_colors(mesh, albedo, lighting)
+        shading = "flat" if render_settings is None else render_settings.shading
+        kw.update(shading_colors(mesh, albedo, lighting, shading))
         if weights.albedo_smoothness:
             terms["albedo_smoothness"] = weights.albedo_smoothness * albedo_smoothness(albedo, mesh)
+        if weights.shading_ratio:
+            terms["shading_ratio"] = weights.shading_ratio * _shading_ratio(mesh, renderer, kw, cameras, target, lighting)
     colour = weights.photo if photo else weights.normal
     carve = bool(weights.carve) and not photo and target.shape[-1] == 4
     consistent = bool(weights.consistency) and photo and neighbours is not None

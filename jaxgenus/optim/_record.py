@@ -18,6 +18,7 @@ RECORD_KEYS = (
     "albedo_smoothness",
     "containment",
     "consistency",
+    "shading_ratio",
     "grad_norm",
     "cg_iterations_forward",
     "cg_iterations_backward",
@@ -49,6 +50,7 @@ class StepRecord(eqx.Module):
     albedo_smoothness: Array
     containment: Array
     consistency: Array
+    shading_ratio: Array
     grad_norm: Array
     cg_iterations_forward: Array
     cg_iterations_backward: Array
@@ -69,7 +71,7 @@ def step_record(loss, terms, gx, info_b, info_f, ok, inverted) -> StepRecord:
     status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
     zero = jnp.zeros((), loss.dtype)
     return StepRecord(
-        loss=loss, **{name: terms.get(name, zero) for name in RECORD_KEYS[1:9]},
+        loss=loss, **{name: terms.get(name, zero) for name in RECORD_KEYS[1:10]},
         grad_norm=jnp.sqrt(jnp.sum(gx * gx)), cg_iterations_forward=info_f.iterations,
         cg_iterations_backward=info_b.iterations, cg_residual=jnp.maximum(info_f.residual, info_b.residual),
         inverted_faces=inverted, status=status,

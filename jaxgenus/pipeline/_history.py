@@ -272,9 +272,10 @@ class Reconstruction:
 
     def render_photo(self, cams: Cameras, **render_kwargs):
         """Photo targets: RGBA renders of the result with its albedo and lighting in any `cams`
-        (user units; held-out views), `(N, H, W, 4)`."""
+        (user units; held-out views), `(N, H, W, 4)`, shaded as it was fitted (`shading`)."""
         if self.albedo is None:
             raise ValueError("render_photo needs a reconstruction from photo targets (albedo is None)")
         pad = np.zeros((self.mesh.vertex_capacity, 3), np.float32)
         pad[: len(self.albedo)] = self.albedo
+        render_kwargs.setdefault("shading", self.options.render.shading)
         return render_photo(self.mesh, cams, pad, self.lighting, **render_kwargs)

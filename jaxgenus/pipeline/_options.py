@@ -120,6 +120,12 @@ class ReconstructOptions:
             rises towards that, to at most this many (docs/photometric.md, "Face budget"; time and memory grow with it:
             DTU scan65 at 1600x1200 on 2 CPU cores, 12k faces: 196 s, 6.9 GB, 40k: 431 s,
             8.7 GB). 0, or any value not above `max_faces`, holds the budget at `max_faces`.
+        texture_ratio: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`, the jumps
+            themselves) cover `FINE_TEXTURE` (30 %) of the masks or more, a texture finer than the
+            mesh's albedo holds, are fitted with `LossWeights.shading_ratio` at this weight when it
+            is 0 (ray-cast 10-px colour cells: 41-45 % of the pixels, CD 0.00300 -> 0.00228 on a
+            genus-2 shape; smooth albedos 8-18 %, DTU scan65 3-11 %, where the term costs or does
+            nothing). 0: never (docs/photometric.md, "Shading ratios").
     """
 
     n_cycles: int = 4
@@ -146,6 +152,7 @@ class ReconstructOptions:
     refits: int | None = None
     refit_carve: float = 1.0
     detail_faces: int = 40000
+    texture_ratio: float = 6.0
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
@@ -159,7 +166,7 @@ class ReconstructOptions:
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
-        for name in ("refit_carve", "fine_below"):
+        for name in ("refit_carve", "fine_below", "texture_ratio"):
             _number(name, getattr(self, name), 0.0, math.inf)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error"):
             _number(name, getattr(self, name), 0.0, 1.0)

@@ -16,17 +16,20 @@ import math
 from typing import Callable
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, check_targets, cut_views, hull_thickness, pixel_footprint,
                               scene_frame, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
-from jaxgenus.optim import gathered_views, pyramid_level, resolution_factors, scaled_cameras, views_layout
+from jaxgenus.optim import (albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
+                            views_layout)
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
 
-__all__ = ["DETAIL_EDGE", "Setup", "detail_budget", "downsampled", "hull_factor", "prepare"]
+__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "Setup", "detail_budget", "downsampled", "hull_factor", "prepare",
+           "texture_share"]
 
 #: Photo-consistency places the surface to a fraction of a pixel where the photos carry texture: the
 #: edge length, in pixels of the fitted images, that `detail_budget` sizes the face budget for (the
@@ -163,6 +166,37 @@ def _detailed(options: ReconstructOptions, tg: Targets, n_views: int, hulls: Hul
     return options.updated(max_faces=budget)
 
 
+#: Photos whose albedo edges cover this share of their masks or more get the shading-ratio term
+#: (`ReconstructOptions.texture_ratio`).
+FINE_TEXTURE = 0.3
+
+
+def texture_share(photos) -> float:
+    """The share of the pixels inside the masks of `photos (N, H, W, 4)` (premultiplied RGBA) that sit
+    on an albedo edge (`albedo_edges(..., band=0)`), over every view (views taken a few at a time)."""
+    marked = inside = 0
+    for i in range(0, len(photos), 4):
+        chunk = np.asarray(photos[i:i + 4], np.float32)
+        mask = chunk[..., 3] >= 0.5
+        marked += int(np.sum(np.asarray(albedo_edges(jnp.asarray(chunk), band=0)) & mask))
+        inside += int(np.sum(mask))
+    return marked / max(inside, 1)
+
+
+def _textured(options: ReconstructOptions, tg: Targets, n_views: int, say) -> ReconstructOptions:
+    """`options` with `shading_ratio` at `texture_ratio` for photos of a fine texture (said when set), on
+    one device (each process of a split run holds only its own views to judge by)."""
+    if (tg.kind != "photo" or options.texture_ratio <= 0 or options.optimize.weights.shading_ratio > 0
+            or views_layout(n_views, options.devices)[0] is not None):
+        return options
+    share = texture_share(tg.fit)
+    if share < FINE_TEXTURE:
+        return options
+    say(f"fine texture: albedo edges cover {share:.0%} of the photos' masks (>= {FINE_TEXTURE:.0%}): shading ratios "
+        f"on, weight {options.texture_ratio:g} (texture_ratio=0 / --shading-ratio 0: off)")
+    return options.updated(shading_ratio=options.texture_ratio)
+
+
 def hull_factor(alpha, resolutions: tuple[int, ...]) -> int:
     """The pyramid factor the silhouettes are read at for the frame, the bounds and the visual hulls:
     the largest power of two that leaves the silhouettes' median extent (the longer side of their
@@ -262,6 +296,7 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     estimate = _estimated(hulls, options, say) if genus is None else None
     thickness, fine = _thin(canonical, hulls, pixel, options, say)
     options = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, say)
+    options = _textured(options, tg, len(cams), say)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options,

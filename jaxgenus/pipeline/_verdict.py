@@ -98,13 +98,14 @@ def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: floa
     return ious, (None if normals is None else errors)
 
 
-def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float) -> list[float]:
+def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float,
+                 shading: str = "flat") -> list[float]:
     """Per view, the mean absolute RGB difference between `render_photo` and `photos (N, H, W, 4)`
     (straight, not premultiplied) over the pixels both cover at alpha 0.5 (NaN where none).
     Views are rendered in chunks."""
     errors = []
     for idx in _chunks(cams):
-        img = np.asarray(render_photo(mesh, cams[idx], albedo, lighting, sigma=sigma))
+        img = np.asarray(render_photo(mesh, cams[idx], albedo, lighting, sigma=sigma, shading=shading))
         for k, i in enumerate(idx):
             photo = np.asarray(photos[i])
             both = (img[k, ..., 3] >= 0.5) & (photo[..., 3] >= 0.5)
@@ -246,7 +247,7 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
                     "raise max_faces for more detail)")
     perr = None
     if e.appearance is not None:
-        perr = every(photo_errors(result, here, e.photos, *e.appearance, sigma=sigma))
+        perr = every(photo_errors(result, here, e.photos, *e.appearance, sigma=sigma, shading=options.render.shading))
         med = float(np.nanmedian(perr))
         if not med <= max_photo_error:
             fail.append(f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian "

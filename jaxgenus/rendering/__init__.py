@@ -3,7 +3,7 @@ raster plans, `render`, and Lambertian shading of photos. Depends on `geometry` 
 """
 
 from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
-from jaxgenus.rendering._render import CHANNEL_SIZES, RenderInfo, RenderSettings, render
+from jaxgenus.rendering._render import CHANNEL_SIZES, SHADINGS, RenderInfo, RenderSettings, render
 from jaxgenus.rendering._shading import (
     LIGHTING_SHAPE,
     LIGHTING_SHAPES,
@@ -12,6 +12,8 @@ from jaxgenus.rendering._shading import (
     irradiance,
     lighting_model,
     render_photo,
+    shading_colors,
+    vertex_colors,
 )
 
 __all__ = [
@@ -21,6 +23,7 @@ __all__ = [
     "RasterPlan",
     "RenderInfo",
     "RenderSettings",
+    "SHADINGS",
     "directional_lighting",
     "face_colors",
     "irradiance",
@@ -28,5 +31,7 @@ __all__ = [
     "plan_render",
     "render",
     "render_photo",
+    "shading_colors",
     "static_plan",
+    "vertex_colors",
 ]

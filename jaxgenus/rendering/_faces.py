@@ -19,7 +19,8 @@ from jaxgenus.geometry import face_normals
 from jaxgenus.rendering._projection import projected_faces
 from jaxgenus.rendering._splat import CUTOFF_LOG, DC
 
-__all__ = ["FACING_WIDTH", "Faces", "blur_radius", "check_inputs", "check_scalar", "face_setup", "facing_log_weight"]
+__all__ = ["FACING_WIDTH", "Faces", "attribute_planes", "blur_radius", "check_inputs", "check_scalar", "face_setup",
+           "facing_log_weight"]
 
 
 class Faces(NamedTuple):
@@ -67,6 +68,39 @@ def facing_log_weight(tw, rot, trans):
     return jnp.where(live, jnp.log(jnp.where(live, w, 1.0)), -jnp.inf)
 
 
+# Faces whose projection has under this doubled area (pixels^2) get a constant (their corners' mean):
+# a plane through a sliver would be steep and its gradient in the vertices unbounded.
+_MIN_AREA2 = 1e-3
+
+
+def attribute_planes(uv, corner_values):
+    """`(N, F, 5 A)`: per view, face and channel `(gx, gy, c, lo, hi)`, the affine function of the pixel
+    `(u, v)` that takes `corner_values (F, 3, A)` at the projected corners `uv (N, F, 3, 2)` (interpolation
+    in the image plane, not perspective-corrected: faces span a few pixels), clamped to the corners'
+    range so that the blur margin outside a face does not extrapolate. Constant on slivers."""
+    f = corner_values[None].astype(uv.dtype)  # (1, F, 3, A)
+    d1, d2 = uv[:, :, 1] - uv[:, :, 0], uv[:, :, 2] - uv[:, :, 0]  # (N, F, 2)
+    det = d1[..., 0] * d2[..., 1] - d1[..., 1] * d2[..., 0]
+    ok = jnp.abs(det) > _MIN_AREA2
+    inv = jnp.where(ok, 1.0 / jnp.where(ok, det, 1.0), 0.0)[..., None]  # (N, F, 1)
+    f1, f2 = f[:, :, 1] - f[:, :, 0], f[:, :, 2] - f[:, :, 0]  # (1, F, A)
+    gx = (f1 * d2[..., 1:2] - f2 * d1[..., 1:2]) * inv
+    gy = (f2 * d1[..., 0:1] - f1 * d2[..., 0:1]) * inv
+    centre = jnp.mean(uv, axis=2)  # (N, F, 2): the plane through the corners' mean, exact at the corners
+    c = jnp.mean(f, axis=2) - gx * centre[..., 0:1] - gy * centre[..., 1:2]
+    lo = jnp.broadcast_to(jnp.min(f, axis=2), gx.shape)
+    hi = jnp.broadcast_to(jnp.max(f, axis=2), gx.shape)
+    planes = jnp.stack([gx, gy, c, lo, hi], axis=-1)  # (N, F, A, 5)
+    return planes.reshape(planes.shape[:2] + (-1,))
+
+
+def _constant_planes(values):
+    """`(N, F, A)` face constants as `attribute_planes` (flat, the clamp pinned to the value)."""
+    z = jnp.zeros_like(values)
+    planes = jnp.stack([z, z, values, values, values], axis=-1)
+    return planes.reshape(planes.shape[:2] + (-1,))
+
+
 def check_scalar(name, value):
     try:
         v = float(value)
@@ -84,8 +118,13 @@ def check_inputs(mesh, cameras):
         raise ValueError(f"cameras must be a jaxgenus.Cameras, got {type(cameras).__name__}")
 
 
-def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face_colors=None) -> Faces:
-    """Per view and face: projection, culling, depth plane and blend attributes."""
+def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face_colors=None,
+               vertex_colors=None) -> Faces:
+    """Per view and face: projection, culling, depth plane and blend attributes.
+
+    With `vertex_colors (V, 3)` (for `"color"`, instead of `face_colors`) every attribute is
+    a clamped plane in the pixel (`attribute_planes`; 5 values a channel): the colour is
+    interpolated over each face, the other channels are constant planes."""
     dtype = mesh.vertices.dtype
     rot = cameras.rotation.astype(dtype)
     trans = cameras.translation.astype(dtype)
@@ -129,6 +168,8 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
         for name in attrs:
             if name == "normal":
                 parts.append(jnp.broadcast_to(nrm[None], (n_views, n_faces, 3)))
+            elif name == "color" and vertex_colors is not None:
+                parts.append(None)  # filled with planes below
             elif name == "color":
                 parts.append(jnp.broadcast_to(face_colors.astype(dtype)[None], (n_views, n_faces, 3)))
             else:  # shaded
@@ -139,6 +180,10 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
                     ldir = ldir / jnp.linalg.norm(ldir, axis=-1, keepdims=True)
                 lam = jnp.maximum(jnp.einsum("fi,ni->nf", nrm, ldir), 0.0)
                 parts.append((ambient + (1.0 - ambient) * lam)[..., None])
+    if vertex_colors is not None:
+        corners = vertex_colors.astype(dtype)[mesh.faces]  # (F, 3, 3)
+        colour = attribute_planes(uv, corners)
+        parts = [colour if p is None else _constant_planes(p) for p in parts]
     attr = jnp.concatenate(parts, axis=-1) if parts else jnp.zeros((n_views, n_faces, 0), dtype)
     dconst = pj.dconst
     logw = jnp.where(valid, logw, 0.0)

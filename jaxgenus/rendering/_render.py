@@ -25,10 +25,12 @@ from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
 from jaxgenus.rendering._splat import SplatConfig, Tier, splat
 from jaxgenus.rendering._splat_native import splat_all
 
-__all__ = ["render", "RenderInfo", "RenderSettings", "CHANNEL_SIZES"]
+__all__ = ["render", "RenderInfo", "RenderSettings", "CHANNEL_SIZES", "SHADINGS"]
 
 #: Number of image channels each requested channel contributes, in request order.
 CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1, "color": 3}
+#: The shadings of a photo render: colours constant per face, or per vertex and interpolated (`render_photo`).
+SHADINGS = ("flat", "smooth")
 _BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0)}
 
 
@@ -40,17 +42,22 @@ class RenderSettings:
         sigma: edge blur in pixels (see `render`).
         gamma: depth softmax temperature.
         plan: the JAX splat's `RasterPlan` (None: the native kernel on CPU, else planned per call).
+        shading: photos: `"flat"` (a colour per face) or `"smooth"` (per vertex, interpolated
+            over the faces); `jaxgenus.render_photo`. Not a keyword of `render` (`kwargs`).
     """
 
     sigma: float = 0.1
     gamma: float = 0.01
     plan: RasterPlan | None = None
+    shading: str = "flat"
 
     def __post_init__(self):
         for name in ("sigma", "gamma"):
             v = getattr(self, name)
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"render settings: {name} must be a positive number, got {v!r}")
+        if self.shading not in SHADINGS:
+            raise ValueError(f"render settings: shading must be one of {SHADINGS}, got {self.shading!r}")
         if self.plan is not None and not isinstance(self.plan, RasterPlan):
             raise ValueError(f"render settings: plan must be a RasterPlan or None, got {type(self.plan).__name__}")
 
@@ -112,6 +119,7 @@ def render(
     light_direction=None,
     ambient: float = 0.3,
     face_colors=None,
+    vertex_colors=None,
     plan: RasterPlan | None = None,
     return_info: bool = False,
 ):
@@ -129,8 +137,9 @@ def render(
     * `"shaded"` (1): Lambertian `ambient + (1 - ambient) * max(0, n . l)` blended
       the same way; `l` is `light_direction` (world, pointing to the light) or, if
       None, a headlight (towards each camera).
-    * `"color"` (3): the per-face RGB `face_colors` blended the same way (a photo's
-      shading, see `jaxgenus.render_photo`).
+    * `"color"` (3): the per-face RGB `face_colors`, or the per-vertex RGB `vertex_colors`
+      interpolated over each face (affine in the pixel, clamped to the corners' range),
+      blended the same way (a photo's shading, see `jaxgenus.render_photo`).
 
     Args:
         sigma: edge blur in pixels (the sigmoid's scale; 10-90 % over 4.4 sigma).
@@ -142,7 +151,9 @@ def render(
             coverage and blend weight scale by `sigmoid(cos / FACING_WIDTH)`, so the
             image stays continuous in the vertices as a face turns at the contour
             (a hard cut there breaks the silhouette gradient). False: all faces.
-        face_colors: `(face capacity, 3)` RGB per face, needed by `"color"` (differentiable).
+        face_colors: `(face capacity, 3)` RGB per face for `"color"` (differentiable).
+        vertex_colors: `(vertex capacity, 3)` RGB per vertex for `"color"`, instead of
+            `face_colors` (differentiable in the colours and the vertices).
         plan: None (default): on CPU the native kernel (`_splat_native`, C++ behind
             the XLA FFI) renders every face exactly, with no windows or budgets, under
             `jit` or not; on other platforms the JAX splat runs with a plan from the
@@ -188,12 +199,20 @@ def render(
         ld = np.asarray(light_direction, dtype=float)
         if ld.shape != (3,) or not np.linalg.norm(ld) > 0:
             raise ValueError("light_direction must be a non-zero 3-vector")
-    if ("color" in channels) != (face_colors is not None):
-        raise ValueError("face_colors must be given exactly when channels has 'color'")
+    if face_colors is not None and vertex_colors is not None:
+        raise ValueError("give face_colors or vertex_colors, not both")
+    if ("color" in channels) != (face_colors is not None or vertex_colors is not None):
+        raise ValueError("face_colors or vertex_colors must be given exactly when channels has 'color'")
     if face_colors is not None:
         face_colors = jnp.asarray(face_colors)
         if face_colors.shape != (mesh.face_capacity, 3):
             raise ValueError(f"face_colors must have shape (face capacity {mesh.face_capacity}, 3), got {face_colors.shape}")
+    if vertex_colors is not None:
+        vertex_colors = jnp.asarray(vertex_colors)
+        if vertex_colors.shape != (mesh.vertex_capacity, 3):
+            raise ValueError(f"vertex_colors must have shape (vertex capacity {mesh.vertex_capacity}, 3), "
+                             f"got {vertex_colors.shape}")
+        face_colors = vertex_colors  # one traced argument; `smooth` tells them apart
     native = plan is None
     if plan is None:
         # the plan of the JAX splat, used only where the native kernel is not (GPU):
@@ -207,7 +226,8 @@ def render(
 
     light = None if light_direction is None else tuple(float(x) for x in np.asarray(light_direction).ravel())
     static = dict(channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces), light=light,
-                  ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native)
+                  ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native,
+                  smooth=vertex_colors is not None)
     where = view_sharding(cameras.rotation)
     if where is not None:  # views split over devices: each renders its own (module `_sharded`)
         return per_device(lambda m, fc, c: _render_jit(m, c, plan, fc, **static), where, len(cameras),
@@ -250,20 +270,22 @@ def _splat_native(fs: Faces, cfg: SplatConfig):
 
 @functools.partial(
     jax.jit,
-    static_argnames=("channels", "sigma", "gamma", "znear", "cull", "light", "ambient", "bg", "return_info", "native"),
+    static_argnames=("channels", "sigma", "gamma", "znear", "cull", "light", "ambient", "bg", "return_info", "native",
+                     "smooth"),
 )
-def _render_jit(mesh, cameras, plan, face_colors, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info, native):
+def _render_jit(mesh, cameras, plan, colors, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info,
+                native, smooth):
     bg = dict(bg)
     attrs = tuple(c for c in ("normal", "shaded", "color") if c in channels)
     want_depth = "depth" in channels
     fs = face_setup(
         mesh, cameras, sigma=sigma, znear=znear, cull=cull, attrs=attrs,
-        light=light, ambient=ambient, face_colors=face_colors,
+        light=light, ambient=ambient, face_colors=None if smooth else colors, vertex_colors=colors if smooth else None,
     )
     cfg = SplatConfig(
         height=cameras.height, width=cameras.width, windows=(), sigma=sigma, gamma=gamma,
         want_cov=True, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
-        background=sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ()),
+        background=sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ()), attr_planes=smooth,
     )
     windows = lambda f: _splat_windows(f, plan, mesh.face_capacity, cfg)
     if native:  # no plan given: the native kernel on CPU, the JAX splat with `plan` elsewhere

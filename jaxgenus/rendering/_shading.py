@@ -29,9 +29,12 @@ for a directional light plus ambient).
   uniform white light. In attached shadow `E` does not depend on `n`, so shadowed
   pixels pull on no normal.
 
-Shading is flat per face: a face's colour is the mean albedo of its corners
-times `max(0, E(face normal))`; the renderer's `"color"` channel blends these
-like the normals.
+**Two shadings** (`SHADINGS`): `"flat"`, a face's colour is the mean albedo of its
+corners times `max(0, E(face normal))`, constant over the face (`face_colors`);
+`"smooth"` (Gouraud), each vertex's colour is its albedo times `max(0, E(vertex
+normal))` (`vertex_colors`, area-weighted normals), interpolated over the faces.
+A photo of a smooth surface shades smoothly: flat shading steps at every edge
+of the mesh. The renderer's `"color"` channel blends either like the normals.
 """
 
 from __future__ import annotations
@@ -41,11 +44,11 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxgenus.geometry import Mesh
-from jaxgenus.geometry import face_normals
-from jaxgenus.rendering._render import render
+from jaxgenus.geometry import face_normals, vertex_normals
+from jaxgenus.rendering._render import SHADINGS, render
 
-__all__ = ["LIGHTING_SHAPE", "LIGHTING_SHAPES", "directional_lighting", "face_colors", "irradiance", "lighting_model",
-           "render_photo"]
+__all__ = ["LIGHTING_SHAPE", "LIGHTING_SHAPES", "SHADINGS", "directional_lighting", "face_colors", "irradiance",
+           "lighting_model", "render_photo", "shading_colors", "vertex_colors"]
 
 #: Shape of a `lighting`: 24 coefficients (the non-constant harmonics of order 1 to 4) per RGB channel.
 LIGHTING_SHAPE = (3, 24)
@@ -136,16 +139,37 @@ def face_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, 
     return rho * jnp.maximum(irradiance(face_normals(mesh), lighting), 0.0)
 
 
-def render_photo(mesh: Mesh, cameras, albedo, lighting, **render_kwargs) -> Float[Array, "N H W 4"]:
+def vertex_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, "3 L"]) -> Float[Array, "V 3"]:
+    """Per-vertex RGB: the vertex's albedo times `max(0, E(vertex normal))` (smooth shading)."""
+    albedo = jnp.asarray(albedo)
+    if albedo.shape != (mesh.vertex_capacity, 3):
+        raise ValueError(f"albedo must have shape (vertex capacity {mesh.vertex_capacity}, 3), got {albedo.shape}")
+    e = jnp.maximum(irradiance(vertex_normals(mesh), lighting), 0.0)
+    return jnp.where(mesh.vertex_mask[:, None], albedo.astype(mesh.vertices.dtype) * e, 0.0)
+
+
+def shading_colors(mesh: Mesh, albedo, lighting, shading: str = "flat") -> dict:
+    """The `render` keyword of a photo's colours: `{"face_colors": ...}` (`"flat"`) or
+    `{"vertex_colors": ...}` (`"smooth"`)."""
+    if shading == "flat":
+        return {"face_colors": face_colors(mesh, albedo, lighting)}
+    if shading == "smooth":
+        return {"vertex_colors": vertex_colors(mesh, albedo, lighting)}
+    raise ValueError(f"shading must be one of {SHADINGS}, got {shading!r}")
+
+
+def render_photo(mesh: Mesh, cameras, albedo, lighting, *, shading: str = "flat",
+                 **render_kwargs) -> Float[Array, "N H W 4"]:
     """RGBA photos of `mesh` with per-vertex `albedo (Vcap, 3)` under `lighting` (`(3, 24)` or `(3, 3)`).
 
-    RGB is the blended face colour composited over black with the coverage, A the
-    coverage (the renderer's `"color"` and `"alpha"` channels). `render_kwargs`
+    RGB is the blended colour composited over black with the coverage, A the
+    coverage (the renderer's `"color"` and `"alpha"` channels); `shading` `"flat"`
+    (per face) or `"smooth"` (per vertex, interpolated; module doc). `render_kwargs`
     go to `jaxgenus.render` (`sigma`, `gamma`, ...). Under `jit` and `vmap`.
     """
-    for k in ("channels", "face_colors"):
+    for k in ("channels", "face_colors", "vertex_colors"):
         if k in render_kwargs:
             raise ValueError(f"render_photo sets {k!r} itself")
-    img = render(mesh, cameras, channels=("color", "alpha"), face_colors=face_colors(mesh, albedo, lighting),
+    img = render(mesh, cameras, channels=("color", "alpha"), **shading_colors(mesh, albedo, lighting, shading),
                  **render_kwargs)
     return img

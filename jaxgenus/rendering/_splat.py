@@ -22,7 +22,9 @@ Per tier and view, every face slot carries
 * `plane (K, 3)`: `(gx, gy, c)`, the normalized inverse depth `q` as an affine
   function of the pixel position, `q = gx * u + gy * v + c`,
 * `qrange (K, 2)`: `(lo, hi)`, the clamp of `q` (vertex min / max),
-* `attr (K, A)`: face-constant blend attributes (normals, shading),
+* `attr (K, A)`: face-constant blend attributes (normals, shading), or with
+  `attr_planes` `(K, 5 A)`: per channel `(gx, gy, c, lo, hi)`, the value
+  `clip(gx * u + gy * v + c, lo, hi)` at the pixel (interpolated over the face),
 * `logw (K,)`: log of a face weight (the smooth facing cull): the face covers
   `w_j D_j` and enters the blend with score `log w_j + log D_j + q / gamma`,
 * `valid (K,)` and `origin (K, 2)` (int, window corner `(col, row)`).
@@ -60,6 +62,7 @@ class SplatConfig(NamedTuple):
     n_attr: int  # face-constant blend channels
     want_depth: bool  # blend the per-pixel depth as one more channel
     background: tuple[float, ...]  # blend background, n_attr + want_depth values
+    attr_planes: bool = False  # attributes are clamped planes in the pixel (5 values per channel)
 
     @property
     def sharpness(self) -> float:
@@ -195,9 +198,18 @@ def _depth(q, dconst):
     return 1.0 / (q * dconst[0] + dconst[1])
 
 
+def _attr_raw(tier, p, i):
+    """Channel i's unclamped plane at every pair, and its clamp `(lo, hi)` (`attr_planes`)."""
+    a = tier.attr[:, 5 * i : 5 * i + 5]
+    return a[:, 0:1] * p.px + a[:, 1:2] * p.py + a[:, 2:3], a[:, 3:4], a[:, 4:5]
+
+
 def _blend_values(cfg, tier, p, dconst):
     """Per blend channel, the value of every pair: `(K, 1)` (face constant) or `(K, P)`."""
-    vals = [tier.attr[:, i : i + 1] for i in range(cfg.n_attr)]
+    if cfg.attr_planes:
+        vals = [jnp.clip(*_attr_raw(tier, p, i)) for i in range(cfg.n_attr)]
+    else:
+        vals = [tier.attr[:, i : i + 1] for i in range(cfg.n_attr)]
     if cfg.want_depth:
         vals.append(_depth(p.q, dconst))
     return vals
@@ -333,12 +345,19 @@ def _backward_view(cfg: SplatConfig, tiers, dconst, res, g_cov, g_blend):
         c0, c1, c2 = c
         # one reduction per field (XLA CPU turns a stacked reduction into a slow concatenate)
         fields = [c0 * dxn, c0 * dyn, c1 * dxn, c1 * dyn, c2 * dxn, c2 * dyn, gqf, gqf * p.px, gqf * p.py, glo, ghi, gw]
-        if cfg.n_attr:
-            fields += [pj * gp[3 + i] for i in range(cfg.n_attr)]
+        for i in range(cfg.n_attr):
+            ga = pj * gp[3 + i]
+            if not cfg.attr_planes:
+                fields.append(ga)
+                continue
+            raw, alo, ahi = _attr_raw(t, p, i)
+            afree = (raw > alo) & (raw < ahi)
+            gf = jnp.where(afree, ga, 0.0)
+            fields += [gf * p.px, gf * p.py, gf, jnp.where(raw <= alo, ga, 0.0), jnp.where(~afree & (raw > alo), ga, 0.0)]
         red = jnp.stack([jnp.sum(f, axis=1) for f in fields], -1)
         gv = red[:, :6].reshape(k, 3, 2)
         gplane = jnp.stack([red[:, 7], red[:, 8], red[:, 6]], -1)
-        gattr = red[:, 12:] if cfg.n_attr else jnp.zeros((k, 0), dtype)
+        gattr = red[:, 12:] if cfg.n_attr else jnp.zeros((k, 0), dtype)  # the layout of `attr`
         grads.append(Tier(gv, gplane, red[:, 9:11], gattr, red[:, 11], None, None))
     return tuple(grads), gdc
 

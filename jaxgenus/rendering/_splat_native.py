@@ -32,7 +32,7 @@ def _attrs(cfg: SplatConfig) -> dict:
     return dict(
         height=np.int64(cfg.height), width=np.int64(cfg.width), sigma=np.float64(cfg.sigma),
         gamma=np.float64(cfg.gamma), sharpness=np.float64(cfg.sharpness), want_cov=np.int64(bool(cfg.want_cov)),
-        n_attr=np.int64(cfg.n_attr), want_depth=np.int64(bool(cfg.want_depth)), background=bg,
+        n_attr=np.int64(cfg.n_attr), attr_planes=np.int64(bool(cfg.attr_planes)), want_depth=np.int64(bool(cfg.want_depth)), background=bg,
     )
 
 
@@ -50,7 +50,7 @@ def _check(cfg: SplatConfig, faces: Tier, dconst) -> None:
     lead, nf = v.shape[:-3], v.shape[-3]
     want = {
         "plane": (faces.plane, (nf, 3), v.dtype), "qrange": (faces.qrange, (nf, 2), v.dtype),
-        "attr": (faces.attr, (nf, cfg.n_attr), v.dtype), "logw": (faces.logw, (nf,), v.dtype),
+        "attr": (faces.attr, (nf, cfg.n_attr * (5 if cfg.attr_planes else 1)), v.dtype), "logw": (faces.logw, (nf,), v.dtype),
         "valid": (faces.valid, (nf,), jnp.bool_), "dconst": (dconst, (2,), v.dtype),
     }
     for name, (x, tail, dtype) in want.items():

@@ -14,7 +14,7 @@ namespace ffi = xla::ffi;
 namespace {
 
 struct Attrs {
-  int64_t height, width, want_cov, n_attr, want_depth;
+  int64_t height, width, want_cov, n_attr, attr_planes, want_depth;
   double sigma, gamma, sharpness;
   ffi::Span<const double> background;
 };
@@ -76,6 +76,7 @@ ffi::Error CheckAttrs(const char* op, const Attrs& a, jaxgenus::RasterConfig* cf
   cfg->sharpness = a.sharpness;
   cfg->want_cov = a.want_cov != 0;
   cfg->n_attr = a.n_attr;
+  cfg->attr_planes = a.attr_planes != 0;
   cfg->want_depth = a.want_depth != 0;
   cfg->background = a.background.begin();
   return ffi::Error::Success();
@@ -93,7 +94,7 @@ ffi::Error CheckFaces(ShapeCheck& chk, const jaxgenus::RasterConfig& cfg, ffi::A
   const int64_t F = *nf;
   chk("v", v.dimensions(), {F, 3, 2}, dt, dt) && chk("plane", plane.dimensions(), {F, 3}, plane.element_type(), dt) &&
       chk("qrange", qrange.dimensions(), {F, 2}, qrange.element_type(), dt) &&
-      chk("attr", attr.dimensions(), {F, cfg.n_attr}, attr.element_type(), dt) &&
+      chk("attr", attr.dimensions(), {F, cfg.n_attr * cfg.attr_stride()}, attr.element_type(), dt) &&
       chk("logw", logw.dimensions(), {F}, logw.element_type(), dt) &&
       chk("valid", valid.dimensions(), {F}, ffi::DataType::PRED, ffi::DataType::PRED) &&
       chk("dconst", dconst.dimensions(), {2}, dconst.element_type(), dt);
@@ -130,11 +131,11 @@ ffi::Error Finish(jaxgenus::Status s, const std::string& msg) {
 ffi::Error ForwardImpl(ffi::AnyBuffer v, ffi::AnyBuffer plane, ffi::AnyBuffer qrange, ffi::AnyBuffer attr,
                        ffi::AnyBuffer logw, ffi::Buffer<ffi::PRED> valid, ffi::AnyBuffer dconst, int64_t height,
                        int64_t width, double sigma, double gamma, double sharpness, int64_t want_cov,
-                       int64_t n_attr, int64_t want_depth, ffi::Span<const double> background,
+                       int64_t n_attr, int64_t attr_planes, int64_t want_depth, ffi::Span<const double> background,
                        ffi::Result<ffi::AnyBuffer> cov, ffi::Result<ffi::AnyBuffer> blend,
                        ffi::Result<ffi::AnyBuffer> mlw) {
   jaxgenus::RasterConfig cfg;
-  const Attrs a{height, width, want_cov, n_attr, want_depth, sigma, gamma, sharpness, background};
+  const Attrs a{height, width, want_cov, n_attr, attr_planes, want_depth, sigma, gamma, sharpness, background};
   if (ffi::Error e = CheckAttrs("raster_forward", a, &cfg); e.failure()) return e;
   ShapeCheck chk("raster_forward");
   int64_t nf = 0;
@@ -183,18 +184,18 @@ ffi::Error BackwardImpl(ffi::AnyBuffer v, ffi::AnyBuffer plane, ffi::AnyBuffer q
                         ffi::AnyBuffer logw, ffi::Buffer<ffi::PRED> valid, ffi::AnyBuffer dconst,
                         ffi::AnyBuffer blend, ffi::AnyBuffer mlw, ffi::AnyBuffer g_cov, ffi::AnyBuffer g_blend,
                         int64_t height, int64_t width, double sigma, double gamma, double sharpness,
-                        int64_t want_cov, int64_t n_attr, int64_t want_depth, ffi::Span<const double> background,
+                        int64_t want_cov, int64_t n_attr, int64_t attr_planes, int64_t want_depth, ffi::Span<const double> background,
                         ffi::Result<ffi::AnyBuffer> gv, ffi::Result<ffi::AnyBuffer> gplane,
                         ffi::Result<ffi::AnyBuffer> gqrange, ffi::Result<ffi::AnyBuffer> gattr,
                         ffi::Result<ffi::AnyBuffer> glogw, ffi::Result<ffi::AnyBuffer> gdconst) {
   jaxgenus::RasterConfig cfg;
-  const Attrs a{height, width, want_cov, n_attr, want_depth, sigma, gamma, sharpness, background};
+  const Attrs a{height, width, want_cov, n_attr, attr_planes, want_depth, sigma, gamma, sharpness, background};
   if (ffi::Error e = CheckAttrs("raster_backward", a, &cfg); e.failure()) return e;
   ShapeCheck chk("raster_backward");
   int64_t nf = 0;
   if (ffi::Error e = CheckFaces(chk, cfg, v, plane, qrange, attr, logw, valid, dconst, &nf); e.failure()) return e;
   const ffi::DataType dt = v.element_type();
-  const int64_t H = height, W = width, C = cfg.n_blend(), A = n_attr;
+  const int64_t H = height, W = width, C = cfg.n_blend(), A = n_attr * cfg.attr_stride();
   chk("blend", blend.dimensions(), {H, W, C}, blend.element_type(), dt) &&
       chk("mlw", mlw.dimensions(), {H, W}, mlw.element_type(), dt) &&
       chk("g_cov", g_cov.dimensions(), {H, W}, g_cov.element_type(), dt) &&
@@ -226,6 +227,7 @@ ffi::Error BackwardImpl(ffi::AnyBuffer v, ffi::AnyBuffer plane, ffi::AnyBuffer q
       .Attr<double>("sharpness")        \
       .Attr<int64_t>("want_cov")        \
       .Attr<int64_t>("n_attr")          \
+      .Attr<int64_t>("attr_planes")     \
       .Attr<int64_t>("want_depth")      \
       .Attr<ffi::Span<const double>>("background")
 

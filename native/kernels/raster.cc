@@ -85,7 +85,7 @@ template <typename T>
 void forward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, int64_t view, T* cov, T* blend,
                   T* mlw, ForwardScratch<T>& sc) {
   const Consts<T> k(cfg);
-  const int64_t hw = cfg.height * cfg.width, nb = cfg.n_blend(), na = cfg.n_attr;
+  const int64_t hw = cfg.height * cfg.width, nb = cfg.n_blend(), na = cfg.n_attr, st = cfg.attr_stride();
   T* cv = cov + view * hw;
   std::fill(cv, cv + hw, T(0));
   T* m = nb ? mlw + view * hw : nullptr;
@@ -101,7 +101,7 @@ void forward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, int64_t vie
   }
   Face<T> f;
   for (int64_t fi = 0; fi < fs.n_faces; ++fi) {
-    if (!make_face(fs, view, fi, na, f)) continue;
+    if (!make_face(fs, view, fi, na * st, f)) continue;
     if (nb) sc.faces.emplace_back(fi, sc.recs.size());
     for_each_pair(f, k, cfg, nb > 0, false, [&](int64_t idx, T, T, const Pair<T>& p) {
       if (cfg.want_cov) cv[idx] += p.tv * f.w;
@@ -115,14 +115,15 @@ void forward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, int64_t vie
   if (!nb) return;
   const T scale = fs.dconst[view * 2], offset = fs.dconst[view * 2 + 1];
   for (size_t i = 0; i < sc.faces.size(); ++i) {
-    const T* attr = na ? fs.attr + (view * fs.n_faces + sc.faces[i].first) * na : nullptr;
+    const T* attr = na ? fs.attr + (view * fs.n_faces + sc.faces[i].first) * na * st : nullptr;
     const size_t end = i + 1 < sc.faces.size() ? sc.faces[i + 1].second : sc.recs.size();
     for (size_t r = sc.faces[i].second; r < end; ++r) {
       const auto& rec = sc.recs[r];
       const T w = std::exp(rec.s - m[rec.idx]);
       sc.wsum[rec.idx] += w;
       T* out = bl + int64_t(rec.idx) * nb;
-      for (int64_t c = 0; c < na; ++c) out[c] += w * attr[c];
+      const T px = T(rec.idx % cfg.width) + T(0.5), py = T(rec.idx / cfg.width) + T(0.5);
+      for (int64_t c = 0; c < na; ++c) out[c] += w * attr_value(attr + c * st, cfg.attr_planes, px, py);
       if (cfg.want_depth) out[na] += w * (T(1) / (rec.q * scale + offset));
     }
   }
@@ -145,11 +146,12 @@ void backward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, const Rast
                    const RasterGrads<T>& g, int64_t view, BackwardScratch<T>& sc) {
   const Consts<T> k(cfg);
   const int64_t hw = cfg.height * cfg.width, nb = cfg.n_blend(), na = cfg.n_attr, nf = fs.n_faces;
+  const int64_t st = cfg.attr_stride(), nav = na * st;  // attribute values per face
   const int64_t f0 = view * nf;
   std::fill(g.v + f0 * 6, g.v + (f0 + nf) * 6, T(0));
   std::fill(g.plane + f0 * 3, g.plane + (f0 + nf) * 3, T(0));
   std::fill(g.qrange + f0 * 2, g.qrange + (f0 + nf) * 2, T(0));
-  if (na) std::fill(g.attr + f0 * na, g.attr + (f0 + nf) * na, T(0));
+  if (na) std::fill(g.attr + f0 * nav, g.attr + (f0 + nf) * nav, T(0));
   std::fill(g.logw + f0, g.logw + f0 + nf, T(0));
   const T* gc = cot.g_cov + view * hw;
   const T* mlw = nb ? cot.mlw + view * hw : nullptr;
@@ -163,12 +165,12 @@ void backward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, const Rast
       sc.sgb[i] = s;
     }
   }
-  sc.gattr.assign(std::max<int64_t>(na, 1), 0.0);
+  sc.gattr.assign(std::max<int64_t>(nav, 1), 0.0);
   const T scale = fs.dconst[view * 2], offset = fs.dconst[view * 2 + 1];
   double gdc0 = 0, gdc1 = 0;
   Face<T> f;
   for (int64_t fi = 0; fi < nf; ++fi) {
-    if (!make_face(fs, view, fi, na, f)) continue;
+    if (!make_face(fs, view, fi, nav, f)) continue;
     double gv[3][2] = {{0, 0}, {0, 0}, {0, 0}}, gqf = 0, gqx = 0, gqy = 0, glo = 0, ghi = 0, gw_sum = 0;
     std::fill(sc.gattr.begin(), sc.gattr.end(), 0.0);
     for_each_pair(f, k, cfg, nb > 0, true, [&](int64_t idx, T px, T py, const Pair<T>& p) {
@@ -184,8 +186,24 @@ void backward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, const Rast
         const T* g_b = gb + idx * nb;
         T dot = T(0);
         for (int64_t c = 0; c < na; ++c) {
-          dot += g_b[c] * f.attr[c];
-          sc.gattr[c] += double(pj * g_b[c]);
+          const T* a = f.attr + c * st;
+          dot += g_b[c] * attr_value(a, cfg.attr_planes, px, py);
+          const double ga = double(pj * g_b[c]);
+          if (!cfg.attr_planes) {
+            sc.gattr[c] += ga;
+            continue;
+          }
+          const T raw = a[0] * px + a[1] * py + a[2];
+          double* gp = sc.gattr.data() + c * st;
+          if (raw > a[3] && raw < a[4]) {
+            gp[0] += ga * double(px);
+            gp[1] += ga * double(py);
+            gp[2] += ga;
+          } else if (raw <= a[3]) {
+            gp[3] += ga;
+          } else {
+            gp[4] += ga;
+          }
         }
         T depth = T(0);
         if (cfg.want_depth) {
@@ -230,7 +248,7 @@ void backward_view(const RasterConfig& cfg, const RasterFaces<T>& fs, const Rast
     g.plane[kf * 3 + 2] = T(gqf);
     g.qrange[kf * 2] = T(glo);
     g.qrange[kf * 2 + 1] = T(ghi);
-    for (int64_t c = 0; c < na; ++c) g.attr[kf * na + c] = T(sc.gattr[c]);
+    for (int64_t c = 0; c < nav; ++c) g.attr[kf * nav + c] = T(sc.gattr[c]);
     g.logw[kf] = T(gw_sum);
   }
   g.dconst[view * 2] = T(gdc0);

@@ -9,8 +9,10 @@
 // Layouts (row-major, leading view axis of n_views):
 //   v (V, F, 3, 2) pixel coordinates, plane (V, F, 3) = (gx, gy, c) of the
 //   normalized inverse depth q = gx * u + gy * v + c, qrange (V, F, 2) its clamp,
-//   attr (V, F, A), logw (V, F), valid (V, F) (bool), dconst (V, 2) = (scale,
-//   offset): 1/z = q * scale + offset.
+//   attr (V, F, A) face constants, or with attr_planes (V, F, A, 5) = per channel
+//   (gx, gy, c, lo, hi): the value clamp(gx * u + gy * v + c, lo, hi) at pixel (u, v)
+//   (an attribute interpolated over the face, e.g. Gouraud shading),
+//   logw (V, F), valid (V, F) (bool), dconst (V, 2) = (scale, offset): 1/z = q * scale + offset.
 //   cov (V, H, W), blend (V, H, W, C), mlw (V, H, W), C = n_attr + want_depth.
 // Views are processed in parallel (std::thread, at most one thread per view).
 #pragma once
@@ -29,11 +31,13 @@ struct RasterConfig {
   double sharpness = 1.0;  // coverage exponent p of the blend weight
   bool want_cov = true;
   int64_t n_attr = 0;
+  bool attr_planes = false;  // attributes are clamped planes in the pixel (5 values each), not constants
   bool want_depth = false;
   const double* background = nullptr;  // n_attr + want_depth values (may be null if 0)
   int64_t n_threads = 0;               // 0: std::thread::hardware_concurrency()
 
   int64_t n_blend() const { return n_attr + (want_depth ? 1 : 0); }
+  int64_t attr_stride() const { return attr_planes ? 5 : 1; }  // values per attribute channel
 };
 
 template <typename T>

@@ -57,6 +57,7 @@ struct Consts {
         log1p_m2dc(T(std::log1p(-2.0 * kDC))) {}
 };
 
+// `n_attr` counts the face's attribute values (channels times their stride).
 template <typename T>
 bool make_face(const RasterFaces<T>& fs, int64_t view, int64_t f, int64_t n_attr, Face<T>& out) {
   const int64_t k = view * fs.n_faces + f;
@@ -86,6 +87,14 @@ bool make_face(const RasterFaces<T>& fs, int64_t view, int64_t f, int64_t n_attr
   out.w = std::exp(out.logw);
   out.attr = n_attr > 0 ? fs.attr + k * n_attr : nullptr;
   return true;
+}
+
+// One attribute channel's value at pixel centre (px, py): the constant a[0], or the
+// plane (gx, gy, c) = a[0..2] clamped to [a[3], a[4]].
+template <typename T>
+inline T attr_value(const T* a, bool planes, T px, T py) {
+  if (!planes) return a[0];
+  return std::min(std::max(a[0] * px + a[1] * py + a[2], a[3]), a[4]);
 }
 
 // Geometry of up to kChunk pixels (a run of one row, or the whole bounding box of

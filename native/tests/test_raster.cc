@@ -30,6 +30,7 @@ struct Scene {
   std::vector<double> dconst = {2.0, 0.5};
   bool valid[1] = {true};
   double sigma = 0.8;
+  bool planes = false;  // attr holds (gx, gy, c, lo, hi) per channel
   std::vector<double> background = {0.1, 0.2, 0.3};
 
   RasterConfig config() const {
@@ -40,6 +41,7 @@ struct Scene {
     c.gamma = 0.05;
     c.sharpness = 1.2;
     c.n_attr = 2;
+    c.attr_planes = planes;
     c.want_depth = true;
     c.background = background.data();
     return c;
@@ -148,7 +150,7 @@ void test_finite_differences(const Scene& s) {
   for (auto& x : wc) x = nd(rng);
   for (auto& x : wb) x = nd(rng);
   const Out o = forward(s);
-  std::vector<double> gv(6), gplane(3), gq(2), gattr(2), glogw(1), gdc(2);
+  std::vector<double> gv(6), gplane(3), gq(2), gattr(s.attr.size()), glogw(1), gdc(2);
   RasterCotangents<double> cot{o.blend.data(), o.mlw.data(), wc.data(), wb.data()};
   RasterGrads<double> g{gv.data(), gplane.data(), gq.data(), gattr.data(), glogw.data(), gdc.data()};
   std::string err;
@@ -173,6 +175,28 @@ void test_finite_differences(const Scene& s) {
             an);
     }
   }
+}
+
+// The same triangle with its attributes as clamped planes in the pixel (an interpolated colour):
+// channel 0 reaches its lower clamp over part of the face, channel 1 its upper one.
+Scene planes_scene() {
+  Scene s;
+  s.planes = true;
+  s.attr = {0.05, -0.03, 0.2, 0.1037, 0.8913, -0.02, 0.04, -0.5, -0.9, -0.3};  // no pixel sits on a clamp's kink
+  return s;
+}
+
+void test_planes_are_evaluated_per_pixel() {
+  const Scene s = planes_scene();
+  const Out o = forward(s);
+  // deep inside the face the blend is the face's value (the background's weight is tiny there)
+  const int64_t row = 7, col = 9;
+  const double u = col + 0.5, v = row + 0.5;
+  const double* b = o.blend.data() + (row * kW + col) * 3;
+  const double want0 = std::clamp(0.05 * u - 0.03 * v + 0.2, 0.1037, 0.8913);
+  const double want1 = std::clamp(-0.02 * u + 0.04 * v - 0.5, -0.9, -0.3);
+  CHECK(std::abs(b[0] - want0) < 1e-3 && std::abs(b[1] - want1) < 1e-3, "plane values %.6g %.6g, want %.6g %.6g",
+        b[0], b[1], want0, want1);
 }
 
 void test_validation() {
@@ -210,6 +234,8 @@ int main() {
   test_footprint_misses_nothing(Scene());
   test_footprint_misses_nothing(small_face());
   test_finite_differences(small_face());
+  test_planes_are_evaluated_per_pixel();
+  test_finite_differences(planes_scene());
   test_validation();
   if (g_failures == 0) std::printf("test_raster: all passed\n");
   return std::min(g_failures, 255);

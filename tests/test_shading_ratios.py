@@ -1,0 +1,135 @@
+"""Shading ratios (jaxgenus.optim._intrinsic): an albedo-free shading term for photos, checked on
+photos ray cast by trimesh (smooth normals, one lamp) with 3D colour cells the mesh's albedo cannot hold."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxgenus as jg
+from jaxgenus.optim import shading_ratio_cost
+from _meshes import torus, torus_trimesh
+from _raycast import raycast_lambert
+
+LIGHT = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
+AMBIENT = 0.25
+
+
+def cells(p):
+    """A high-frequency albedo: 3D cells of 0.25 (about 11 px here) with hashed colours in [0.1, 0.9]."""
+    c = np.floor(np.asarray(p, np.float64) / 0.25).astype(np.int64)
+    h = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)
+    return np.stack([0.1 + 0.8 * (((h * (2 * k + 1) * 2654435761) >> 11) % 256) / 255.0 for k in range(3)], 1)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    tm = torus_trimesh(1.0, 0.35, 64, 32)
+    cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=96)
+    out = {}
+    for name, albedo in (("cells", cells), ("constant", (0.6, 0.5, 0.4))):
+        photos = np.asarray(raycast_lambert(cams, tm, light_direction=LIGHT, ambient=AMBIENT, albedo=albedo), np.float32)
+        photos[..., :3] *= photos[..., 3:4]  # premultiplied, as the pipeline fits them
+        out[name] = jnp.asarray(photos)
+    lighting, _ = jg.directional_lighting(LIGHT, AMBIENT, model="directional")
+    return cams, out, jnp.asarray(lighting, jnp.float32)
+
+
+def _cost(mesh, cams, photos, lighting, shading="smooth"):
+    e = jnp.maximum(jg.irradiance(jg.vertex_normals(mesh) if shading == "smooth" else jg.face_normals(mesh), lighting), 0)
+    kw = {"vertex_colors": e} if shading == "smooth" else {"face_colors": e}
+    img = jg.render(mesh, cams, channels=("alpha", "color"), **kw)
+    return shading_ratio_cost(img[..., 0], img[..., 1:4], photos)
+
+
+def _per_pair(mesh, cams, photos, lighting):
+    cost, count = _cost(mesh, cams, photos, lighting)
+    return float(cost) / max(float(count), 1.0)
+
+
+def test_lowest_at_the_true_surface_whatever_the_albedo(scene):
+    cams, photos, lighting = scene
+    # per pair: a thinner tube has fewer pixels inside (the term sums over pixels; the silhouette holds it)
+    costs = {name: {s: _per_pair(torus(1.0, 0.35 * s, 64, 32), cams, photos[name], lighting)
+                    for s in (0.8, 0.9, 1.0, 1.1, 1.25)} for name in ("cells", "constant")}
+    c = costs["constant"]
+    assert c[1.0] < 0.6 * min(c[0.9], c[1.1]) and c[1.0] < 0.3 * min(c[0.8], c[1.25]), c
+    # the pairs across a cell edge cost a bounded amount wherever the surface is: the slope is the rest's
+    c = costs["cells"]
+    assert c[1.0] < min(c[0.9], c[1.1]) and c[1.0] < min(c[0.8], c[1.25]) / 1.05, c
+    truth = torus(1.0, 0.35, 64, 32)
+    cost, count = _cost(truth, cams, photos["constant"], lighting)
+    assert float(count) > 100000
+    # the flat-shaded irradiance steps at mesh edges where the ray-cast photo ramps: it fits worse
+    assert float(cost) < 0.2 * float(_cost(truth, cams, photos["constant"], lighting, "flat")[0])
+
+
+def test_gradient_matches_finite_differences_float64(scene):
+    cams, photos, lighting = scene
+    with jax.enable_x64(True):
+        mesh = torus(1.0, 0.33, 32, 16, dtype=np.float64)
+        cams64 = jg.sphere_cameras(3, radius=3.0, fov_deg=40.0, resolution=48)
+        tm = torus_trimesh(1.0, 0.35, 32, 16)
+        target = raycast_lambert(cams64, tm, light_direction=LIGHT, ambient=AMBIENT, albedo=cells)
+        target = jnp.asarray(np.concatenate([target[..., :3] * target[..., 3:], target[..., 3:]], -1), jnp.float64)
+        lt = jnp.asarray(lighting, jnp.float64)
+
+        def f(x):
+            m = jg.Mesh(x, mesh.faces, mesh.n_vertices, mesh.n_faces)
+            return _cost(m, cams64, target, lt)[0]
+
+        g = jax.grad(f)(mesh.vertices)
+        assert float(jnp.linalg.norm(g)) > 0
+        rng = np.random.default_rng(0)
+        for _ in range(3):
+            d = jnp.asarray(rng.normal(size=mesh.vertices.shape)) * mesh.vertex_mask[:, None]
+            eps = 1e-6
+            fd = float((f(mesh.vertices + eps * d) - f(mesh.vertices - eps * d)) / (2 * eps))
+            an = float(jnp.sum(g * d))
+            assert abs(fd - an) <= 0.03 * abs(an) + 1e-9, (fd, an)
+
+
+def test_nothing_to_compare_gives_zero_not_nan(scene):
+    cams, photos, lighting = scene
+    mesh = torus(1.0, 0.35, 64, 32)
+    dark = photos["cells"].at[..., :3].set(0.0)  # under the dark floor everywhere
+    empty = jnp.zeros_like(photos["cells"])  # no mask
+    for target in (dark, empty):
+        cost, count = _cost(mesh, cams, target, lighting)
+        assert float(cost) == 0.0 and float(count) == 0.0
+        g = jax.grad(lambda x: _cost(jg.Mesh(x, mesh.faces, mesh.n_vertices, mesh.n_faces), cams, target,
+                                     lighting)[0])(mesh.vertices)
+        assert bool(jnp.all(jnp.isfinite(g)))
+    with pytest.raises(ValueError, match="offset"):
+        shading_ratio_cost(jnp.ones((1, 4, 4)), jnp.ones((1, 4, 4, 3)), jnp.ones((1, 4, 4, 4)), offset=0)
+
+
+def test_the_objective_counts_pairs_near_albedo_edges_only(scene):
+    """Where the albedo is smooth the photometric term sees the shading itself: no ratio there."""
+    cams, photos, lighting = scene
+    mesh = torus(1.0, 0.33, 64, 32)
+    albedo = jnp.full((mesh.vertex_capacity, 3), 0.5, jnp.float32)
+    w = jg.LossWeights(shading_ratio=1.0, photo=0.0, alpha=0.0, inversion=0.0, albedo_smoothness=0.0)
+    terms = {name: jg.objective(mesh, cams, photos[name], mesh.vertices, weights=w, appearance=(albedo, lighting))[1]
+             for name in ("cells", "constant")}
+    # a constant albedo marks few pixels (inner contours, where the torus hides itself)
+    assert float(terms["constant"]["shading_ratio"]) < 0.1 * float(terms["cells"]["shading_ratio"]), terms
+    near = jg.optim.albedo_edges(photos["cells"], band=jg.optim.RATIO_BAND)
+    full, n_all = _cost(mesh, cams, photos["cells"], lighting)
+    e = jnp.maximum(jg.irradiance(jg.vertex_normals(mesh), lighting), 0)
+    img = jg.render(mesh, cams, channels=("alpha", "color"), vertex_colors=e)
+    part, n_near = shading_ratio_cost(img[..., 0], img[..., 1:4], photos["cells"], where=near)
+    assert float(terms["cells"]["shading_ratio"]) == pytest.approx(float(part), rel=1e-5)
+    assert 0 < float(n_near) < float(n_all)
+
+
+def test_fine_textures_turn_the_term_on(scene):
+    """`reconstruct` gives photos whose albedo edges cover FINE_TEXTURE of the masks the term
+    (`ReconstructOptions.texture_ratio`); a constant albedo's few edges (inner contours) do not."""
+    from jaxgenus.pipeline._setup import FINE_TEXTURE, texture_share
+
+    _, photos, _ = scene
+    assert texture_share(photos["cells"]) >= FINE_TEXTURE  # 11-px cells: 34 % of the pixels on a jump
+    assert texture_share(photos["constant"]) < 0.1 * FINE_TEXTURE
+    with pytest.raises(ValueError, match="texture_ratio"):
+        jg.ReconstructOptions(texture_ratio=-1.0)
