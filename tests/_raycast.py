@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-__all__ = ["camera_arrays", "raycast", "raycast_lambert", "intersector"]
+__all__ = ["camera_arrays", "cell_albedo", "raycast", "raycast_lambert", "intersector"]
 
 
 def camera_arrays(cams):
@@ -159,3 +159,15 @@ def raycast_lambert(cams, mesh, *, light_direction, ambient: float = 0.3, albedo
         out[n, ..., :3] = np.clip(csum / np.maximum(count, 1)[..., None], 0.0, 1.0)
         out[n, ..., 3] = count / (k * k)
     return out
+
+
+def cell_albedo(size: float):
+    """An albedo for `raycast_lambert`: 3D cells of `size` (world units), each a hashed colour in
+    [0.1, 0.9] per channel: a high-frequency texture that a per-vertex albedo cannot hold."""
+
+    def albedo(p):
+        c = np.floor(np.asarray(p, np.float64) / size).astype(np.int64)
+        h = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)
+        return np.stack([0.1 + 0.8 * (((h * (2 * k + 1) * 2654435761) >> 11) % 256) / 255.0 for k in range(3)], 1)
+
+    return albedo

@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import jaxgenus as jg
 from jaxgenus.optim import EDGE_LOG_RATIO, albedo_edges
 from _meshes import torus, torus_trimesh
-from _raycast import raycast_lambert
+from _raycast import cell_albedo, raycast_lambert
 
 LIGHT = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
 
@@ -67,12 +67,7 @@ def test_cells_ray_cast_by_trimesh_are_found_where_their_borders_project():
     of the torus passes in front of another)."""
     tm = torus_trimesh(1.0, 0.35, 64, 32)
     cams = jg.sphere_cameras(6, radius=3.0, fov_deg=40.0, resolution=96)
-    cell = lambda p: np.floor(np.asarray(p) / 0.1).astype(np.int64)
-
-    def hashed(p):
-        c = cell(p)
-        h = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)
-        return np.stack([0.1 + 0.8 * (((h * (2 * k + 1) * 2654435761) >> 11) % 256) / 255.0 for k in range(3)], 1)
+    hashed = cell_albedo(0.1)
 
     textured = raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.25, albedo=hashed)
     plain = raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.25, albedo=(0.6, 0.5, 0.4))

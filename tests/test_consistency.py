@@ -10,16 +10,13 @@ import jaxgenus as jg
 from jaxgenus.optim import (ROBUST_SPREAD, consistency_windows, optimize_block, init_optimizer_state, photo_consistency,
                             robust_cost, view_neighbours)
 from _meshes import torus, torus_trimesh
-from _raycast import raycast_depth, raycast_lambert
+from _raycast import cell_albedo, raycast_depth, raycast_lambert
 
 LIGHT = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
 
 
-def cells(p):
-    """A high-frequency albedo: 3D cells of 0.1 with hashed colours."""
-    c = np.floor(np.asarray(p, np.float64) / 0.1).astype(np.int64)
-    h = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)
-    return np.stack([0.1 + 0.8 * (((h * (2 * k + 1) * 2654435761) >> 11) % 256) / 255.0 for k in range(3)], 1)
+#: A high-frequency albedo: 3D cells of 0.1 with hashed colours.
+cells = cell_albedo(0.1)
 
 
 @pytest.fixture(scope="module")

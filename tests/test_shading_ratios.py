@@ -9,17 +9,14 @@ import pytest
 import jaxgenus as jg
 from jaxgenus.optim import shading_ratio_cost
 from _meshes import torus, torus_trimesh
-from _raycast import raycast_lambert
+from _raycast import cell_albedo, raycast_lambert
 
 LIGHT = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
 AMBIENT = 0.25
 
 
-def cells(p):
-    """A high-frequency albedo: 3D cells of 0.25 (about 11 px here) with hashed colours in [0.1, 0.9]."""
-    c = np.floor(np.asarray(p, np.float64) / 0.25).astype(np.int64)
-    h = (c[:, 0] * 73856093) ^ (c[:, 1] * 19349663) ^ (c[:, 2] * 83492791)
-    return np.stack([0.1 + 0.8 * (((h * (2 * k + 1) * 2654435761) >> 11) % 256) / 255.0 for k in range(3)], 1)
+#: A high-frequency albedo: 3D cells of 0.25 (about 11 px here) with hashed colours in [0.1, 0.9].
+cells = cell_albedo(0.25)
 
 
 @pytest.fixture(scope="module")
