@@ -142,6 +142,8 @@ def _options(args):
         change["shading"] = args.shading
     if getattr(args, "shading_ratio", None) is not None:  # 0: off, also for fine textures
         change.update(shading_ratio=args.shading_ratio, **({} if args.shading_ratio else {"texture_ratio": 0.0}))
+    if getattr(args, "stereo", None) is not None:  # 0: no stereo at all (neither the start nor the term)
+        change.update(stereo=args.stereo, **({} if args.stereo else {"stereo_carve": 0.0}))
     if args.refits is not None:
         change["refits"] = args.refits
     if args.refit_carve is not None:
@@ -319,6 +321,9 @@ def _photo_arguments(r) -> None:
     r.add_argument("--shading-ratio", type=float, metavar="W",
                    help="photo targets: weight of the albedo-free shading term (log ratios of nearby pixels; default: "
                         "6 for photos of a fine texture, else off; 0: off)")
+    r.add_argument("--stereo", type=float, metavar="W",
+                   help="photo targets: weight of the plane-sweep stereo depth term (default 1; 0: no stereo, "
+                        "neither the depth term nor the carving of the start)")
 
 
 def main(argv=None) -> int:

@@ -59,5 +59,8 @@ def test_cli_settings_map_onto_the_nested_options():
     assert smooth.optimize.render.shading == "smooth" and smooth.optimize.weights.shading_ratio == 2.5
     assert smooth.texture_ratio == jg.ReconstructOptions().texture_ratio
     assert _options(argparse.Namespace(**{**base, "shading_ratio": 0.0})).texture_ratio == 0.0  # off, textures too
+    assert opts.optimize.weights.stereo == 1.0 and opts.stereo_carve == jg.ReconstructOptions().stereo_carve
+    no_stereo = _options(argparse.Namespace(**{**base, "stereo": 0.0}))
+    assert no_stereo.optimize.weights.stereo == 0.0 and no_stereo.stereo_carve == 0.0
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000

@@ -8,10 +8,15 @@ from jaxgenus.capture._frame import SceneFrame, pixel_footprint, scene_frame
 from jaxgenus.capture._hull import HullOccupancy, cut_views, hull_occupancy, hull_thickness, largest_component, visual_hull, visual_hull_bounds
 from jaxgenus.capture._images import LoadedImages, load_images
 from jaxgenus.capture._pairing import pair_images
+from jaxgenus.capture._stereo import StereoDepths, carved_occupancy, consistent_depths, stereo_depths
 from jaxgenus.capture._targets import TARGET_KINDS, Targets, check_targets
 
 __all__ = [
     "LoadedImages",
+    "StereoDepths",
+    "carved_occupancy",
+    "consistent_depths",
+    "stereo_depths",
     "TARGET_KINDS",
     "SceneFrame",
     "Targets",

@@ -7,7 +7,8 @@ from jaxgenus.optim._intrinsic import (EDGE_LOG_RATIO, RATIO_BAND, RATIO_OFFSET,
 from jaxgenus.optim._adam import GradientTransformation, UniformAdamState, uniform_adam
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._compilations import count_compilations
-from jaxgenus.optim._consistency import ROBUST_SPREAD, consistency_windows, photo_consistency, robust_cost, view_neighbours
+from jaxgenus.optim._consistency import (ROBUST_SPREAD, STEREO_SCALE, consistency_windows, photo_consistency, robust_cost,
+                                         stereo_depth_cost, view_neighbours)
 from jaxgenus.optim._containment import containment_penalty, outside_distance
 from jaxgenus.optim._largesteps import (
     SolveInfo,
@@ -52,6 +53,8 @@ __all__ = [
     "photo_consistency",
     "robust_cost",
     "view_neighbours",
+    "stereo_depth_cost",
+    "STEREO_SCALE",
     "containment_penalty",
     "count_compilations",
     "from_differential",

@@ -19,9 +19,11 @@ not, so the few windows that cannot match even on the true surface do not shake
 it (docs/photometric.md). This is the mesh-refinement idea of Vu et al. 2012 and
 Delaunoy & Pollefeys 2014, written here for the soft rasterizer.
 
-`view_neighbours` picks, for every view, the views that see the object from
-5 to 40 degrees away (the baselines NCC works on), the nearest to 20 degrees
-first; a step samples one of them per reference view.
+`view_neighbours` picks, for every view, the views that see much of what it sees
+from 5 to 40 degrees away (the baselines NCC works on), the nearest to 20 degrees
+first; a step samples one of them per reference view. `stereo_depth_cost` compares
+the rendered depth with depths found by plane-sweep stereo of the photos alone
+(`jaxgenus.capture.stereo_depths`), whose basin is as wide as the sweep.
 """
 
 from __future__ import annotations
@@ -34,7 +36,8 @@ from jaxtyping import Array, Float, Int
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim._pyramid import scaled_cameras
 
-__all__ = ["MIN_STD", "ROBUST_SPREAD", "consistency_windows", "photo_consistency", "robust_cost", "view_neighbours"]
+__all__ = ["MIN_STD", "ROBUST_SPREAD", "STEREO_SCALE", "consistency_windows", "photo_consistency", "robust_cost",
+           "stereo_depth_cost", "view_neighbours"]
 
 #: Windows whose reference photo varies less than this (std of the grey level in [0, 1]) carry no texture.
 MIN_STD = 0.03
@@ -49,37 +52,58 @@ _DEPTH_STEP = 0.02
 #: The scale of `robust_cost`: this many times the median window residual.
 ROBUST_SPREAD = 2.0
 _MIN_SCALE = 1e-3
+#: The scale of `stereo_depth_cost`: relative depth differences well below it pull as their squares, larger
+#: ones are bounded (a wrong stereo match costs little).
+STEREO_SCALE = 0.02
+_OVERLAP_POINTS = 2000  # `view_neighbours` measures overlaps on at most this many points
 
 
-def view_neighbours(cameras: Cameras, centre=(0.0, 0.0, 0.0), *, count: int = 4, min_angle: float = 5.0,
-                    max_angle: float = 40.0, best_angle: float = 20.0) -> np.ndarray:
-    """`(N, count)` int32: per view, the views whose direction to `centre` lies `min_angle` to
-    `max_angle` degrees from its own and that see `centre` in their image, nearest to `best_angle`
-    first and at distance ratios within 2x; rows with fewer fill up with the best again. A view
-    with none there (sparse rings) takes its nearest view within 1.5 x `max_angle`, and with
-    none at all holds its own index (a pair with itself carries no signal)."""
+def view_neighbours(cameras: Cameras, centre=(0.0, 0.0, 0.0), *, points=None, count: int = 4,
+                    min_angle: float = 5.0, max_angle: float = 40.0, best_angle: float = 20.0,
+                    min_overlap: float = 0.3) -> np.ndarray:
+    """`(N, count)` int32: per view, the views that see much of what it sees from `min_angle` to
+    `max_angle` degrees away, nearest to `best_angle` first; rows with fewer fill up with the best
+    again. A view with none there (sparse rings) takes its nearest view within 1.5 x `max_angle`,
+    and with none at all holds its own index (a pair with itself carries no signal).
+
+    What a view sees is the part of `points` (`(M, 3)`, e.g. the visual hull's vertices; default:
+    `centre` alone) in front of it and inside its image; a pair needs `min_overlap` of it inside
+    the other view too, and its angle is measured at the centre of that part, with the distances
+    to it within 2x. An object cut by the frames (each view sees a part of a building) pairs views
+    that share a part, where the object's centre is in few of the images."""
     if not isinstance(cameras, Cameras):
         raise ValueError(f"cameras must be Cameras, got {type(cameras).__name__}")
     if not (isinstance(count, int) and count >= 1):
         raise ValueError(f"count must be an int >= 1, got {count!r}")
     if not 0.0 <= min_angle < max_angle <= 180.0:
         raise ValueError(f"need 0 <= min_angle < max_angle <= 180, got {min_angle}, {max_angle}")
-    c = np.asarray(centre, np.float64).reshape(3)
+    if not 0.0 < min_overlap <= 1.0:
+        raise ValueError(f"min_overlap must be in (0, 1], got {min_overlap!r}")
+    pts = np.asarray(centre if points is None else points, np.float64).reshape(-1, 3)
+    if len(pts) == 0 or not np.isfinite(pts).all():
+        raise ValueError(f"points: expected finite (M, 3) points, M >= 1, got shape {pts.shape}")
+    pts = pts[np.random.default_rng(0).permutation(len(pts))[:_OVERLAP_POINTS]] if len(pts) > _OVERLAP_POINTS else pts
     rot, t = np.asarray(cameras.rotation, np.float64), np.asarray(cameras.translation, np.float64)
     centres = -np.einsum("nji,nj->ni", rot, t)
-    d = centres - c
-    dist = np.linalg.norm(d, axis=1)
-    if not np.all(dist > 0):
-        raise ValueError("cameras: a camera sits at the centre")
-    d = d / dist[:, None]
-    angle = np.degrees(np.arccos(np.clip(d @ d.T, -1.0, 1.0)))
-    pc = np.einsum("nij,j->ni", rot, c) + t  # the centre in each camera
+    pc = np.einsum("nij,mj->nmi", rot, pts) + t[:, None]  # (N, M, 3): the points in each camera
     f, pp = np.asarray(cameras.focal, np.float64), np.asarray(cameras.principal_point, np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        uv = f * pc[:, :2] / pc[:, 2:3] + pp
-    sees = (pc[:, 2] > 0) & (uv[:, 0] >= 0) & (uv[:, 0] <= cameras.width) & (uv[:, 1] >= 0) & (uv[:, 1] <= cameras.height)
-    ratio = dist[:, None] / dist[None, :]
-    seen = sees[None, :] & sees[:, None] & (ratio <= 2.0) & (ratio >= 0.5) & (angle >= min_angle)
+        uv = f[:, None] * pc[..., :2] / pc[..., 2:3] + pp[:, None]
+    sees = ((pc[..., 2] > 0) & (uv[..., 0] >= 0) & (uv[..., 0] <= cameras.width) & (uv[..., 1] >= 0)
+            & (uv[..., 1] <= cameras.height)).astype(np.float64)  # (N, M)
+    seen_count = sees.sum(1)
+    overlap = (sees @ sees.T) / np.maximum(seen_count[:, None], 1.0)  # share of what i sees that j sees too
+    middle = (sees @ pts) / np.maximum(seen_count[:, None], 1.0)  # the centre of what each view sees
+    to_i = centres - middle  # (N, 3)
+    to_j = centres[None, :, :] - middle[:, None, :]  # (N, N, 3): view j from view i's centre
+    dist_i, dist_j = np.linalg.norm(to_i, axis=1), np.linalg.norm(to_j, axis=2)
+    if not np.all(dist_j > 0):
+        raise ValueError("cameras: a camera sits at the centre of what a view sees")
+    cos = np.einsum("ni,nji->nj", to_i / dist_i[:, None], to_j / dist_j[..., None])
+    angle = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    ratio = dist_i[:, None] / dist_j
+    seen = ((overlap >= min_overlap) & (seen_count[:, None] > 0) & (ratio <= 2.0) & (ratio >= 0.5)
+            & (angle >= min_angle))
     ok = seen & (angle <= max_angle)
     wide = seen & (angle <= 1.5 * max_angle)
     np.fill_diagonal(ok, False)
@@ -213,6 +237,23 @@ def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W
     # textured on both sides (a flat warped window gives no usable gradient, only noise)
     weight = ((n >= 0.75 * window * window) & (var_a >= MIN_STD**2) & (var_b >= 0.25 * MIN_STD**2)).astype(depth.dtype)
     return ncc, jax.lax.stop_gradient(weight)
+
+
+def stereo_depth_cost(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W"], target: Float[Array, "K H W"]
+                      ) -> Float[Array, ""]:
+    """The rendered depth against depths found by stereo from the photos alone (`target`, NaN or <= 0
+    where none): per pixel fully covered, away from contours and steps of the rendered depth, the bounded
+    cost `r^2 / (r^2 + c^2)` of the relative difference `r` (`c` = `STEREO_SCALE`), summed and divided by
+    the pixels (as the image terms are). Its basin is as wide as the stereo search, where the NCC of
+    `photo_consistency` sees a pixel or two."""
+    cover = jax.lax.stop_gradient(alpha)
+    covered = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
+    depth = depth / jnp.maximum(cover, _COVER)
+    valid = covered & ~_depth_steps(jax.lax.stop_gradient(depth)) & jnp.isfinite(target) & (target > 0)
+    t = jnp.where(valid, target, 1.0)
+    r = jnp.where(valid, depth / t - 1.0, 0.0)
+    cost = r * r / (r * r + STEREO_SCALE**2)
+    return jnp.sum(jnp.where(valid, cost, 0.0)) / target.size
 
 
 def _pooled(x):

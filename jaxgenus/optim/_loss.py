@@ -33,7 +33,7 @@ from jaxtyping import Array, Float
 
 from jaxgenus.optim._intrinsic import RATIO_BAND, albedo_edges, shading_ratio_cost
 from jaxgenus.optim._carving import carving_term
-from jaxgenus.optim._consistency import photo_consistency
+from jaxgenus.optim._consistency import photo_consistency, stereo_depth_cost
 from jaxgenus.optim._containment import containment_penalty
 from jaxgenus.geometry import bilaplacian_energy, inversion_penalty, vertex_normals
 from jaxgenus.rendering import RenderSettings, irradiance, render, shading_colors
@@ -80,6 +80,9 @@ class LossWeights:
             which suits a texture finer than the mesh holds (on ray-cast photos of 10 px colour cells,
             CD 0.00300 -> 0.00214) but not a real capture whose albedo the mesh follows (DTU scan65
             at 1/4 size 23.51 -> 23.06 dB held-out PSNR; docs/photometric.md, "Albedo edges").
+        stereo: photo targets with stereo depths (`objective(..., neighbours=(.., .., depths))`;
+            `reconstruct` finds them by plane sweep, `jaxgenus.capture.stereo_depths`):
+            `stereo_depth_cost`, the rendered depth against them, a basin as wide as the sweep.
         shading_ratio: photo targets: `shading_ratio_cost`, the log ratios of nearby pixels of the
             photo against those of the smoothly shaded irradiance at the mesh's normals (albedo-free;
             one more render a step), over the pairs near an albedo edge (`RATIO_BAND`). 0 here;
@@ -97,6 +100,7 @@ class LossWeights:
     containment: float = 0.0
     carve: float = 0.0
     consistency: float = 1.0
+    stereo: float = 1.0
     albedo_edges: float = 1.0
     shading_ratio: float = 0.0
 
@@ -187,7 +191,7 @@ def _shading_ratio(mesh, renderer, kw, cameras, target, lighting):
 
 def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours):
     """The photo-consistency loss of the views against their neighbours (the neighbours' depth constant)."""
-    nb_cams, nb_photos = neighbours
+    nb_cams, nb_photos = neighbours[:2]
     fixed = jax.tree.map(jax.lax.stop_gradient, mesh)
     kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
     nb_depth = jax.lax.stop_gradient(renderer(fixed, nb_cams, channels=("depth", "alpha"), **kw))
@@ -222,7 +226,9 @@ def objective(
     `containment` term (`jaxgenus.optim._containment`); None skips it.
     `neighbours=(cameras, photos)`: photo targets: one neighbour view per view of `cameras` and
     its premultiplied RGBA photo, for the `consistency` term (`jaxgenus.optim._consistency`);
-    the neighbours' depth is rendered for the visibility test and held constant.
+    the neighbours' depth is rendered for the visibility test and held constant. A third entry,
+    `(N, H, W)` depths of the views of `cameras` found by stereo (NaN: none), adds the `stereo`
+    term (`stereo_depth_cost`).
     """
     renderer = render if renderer is None else renderer
     photo = appearance is not None
@@ -239,16 +245,20 @@ def objective(
     colour = weights.photo if photo else weights.normal
     carve = bool(weights.carve) and not photo and target.shape[-1] == 4
     consistent = bool(weights.consistency) and photo and neighbours is not None
-    if weights.alpha or (colour and target.shape[-1] == 4) or carve or consistent:
-        channels = render_channels(target, photo) + (("depth",) if carve or consistent else ())
+    stereo = bool(weights.stereo) and photo and neighbours is not None and len(neighbours) > 2
+    deep = carve or consistent or stereo
+    if weights.alpha or (colour and target.shape[-1] == 4) or deep:
+        channels = render_channels(target, photo) + (("depth",) if deep else ())
         rendered = renderer(mesh, cameras, channels=channels, **kw)
-        if carve or consistent:
+        if deep:
             rendered, depth = rendered[..., :4], rendered[..., 4]
         if carve:
             terms["carve"] = weights.carve * carving_term(rendered, depth, target)
         if consistent:
             terms["consistency"] = weights.consistency * _consistency(mesh, renderer, kw, rendered[..., 0], depth,
                                                                       cameras, target, neighbours)
+        if stereo:
+            terms["stereo"] = weights.stereo * stereo_depth_cost(depth, rendered[..., 0], neighbours[2])
         terms.update(image_terms(rendered, target, weights, photo))
     if weights.bilaplacian:
         terms["bilaplacian"] = weights.bilaplacian * bilaplacian_energy(mesh.vertices, mesh.faces)

@@ -227,9 +227,10 @@ class _Carry(NamedTuple):
     app_adam: UniformAdamState | None
 
 
-def _views(key, cameras, targets, boxes, outside, table, k: int | None, crop: int):
+def _views(key, cameras, targets, boxes, outside, table, k: int | None, crop: int, stereo=None):
     """The step's views: all, or `k` sampled without replacement; through random crops when `crop`.
-    With a neighbour `table` (`view_neighbours`), also one random neighbour of each (its whole view)."""
+    With a neighbour `table` (`view_neighbours`), also one random neighbour of each (its whole view),
+    and the views' `stereo` depths when given (not with crops)."""
     n_views = len(cameras)
     if k is None or k >= n_views:
         idx = jnp.arange(n_views)
@@ -242,7 +243,7 @@ def _views(key, cameras, targets, boxes, outside, table, k: int | None, crop: in
     if table is not None:
         pick = jax.random.randint(jax.random.fold_in(key, 2), idx.shape, 0, table.shape[1])
         nb = table[idx, pick]
-        near = (cameras[nb], targets[nb])
+        near = (cameras[nb], targets[nb]) + (() if stereo is None or crop else (stereo[idx],))
     if crop:
         cams, tgt = crop_views(jax.random.fold_in(key, 1), cams, tgt, box, crop)
     return cams, tgt, out, near
@@ -266,7 +267,7 @@ def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, cr
                                                   select)(key, x, app, views, valid, geometry)
 
     def gradient(key, x, app):
-        cams, tgt, out, near = _views(key, views[0], views[1], views[3], views[2], views[4], k, crop)
+        cams, tgt, out, near = _views(key, views[0], views[1], views[3], views[2], views[4], k, crop, views[5])
         return jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry, near)
 
     return gradient
@@ -286,7 +287,8 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program).
     `valid`: with `options.device_mesh`, which views are real (`spread_views`). `neighbours`: photo
     targets: `(N, M)` neighbour views of every view (`view_neighbours`) for the photo-consistency
-    term (on one device only: with a device mesh it is not used)."""
+    term (on one device only: with a device mesh it is not used), or `(table, depths (N, H, W))` with
+    the views' stereo depths for the `stereo` term."""
     mesh, rest = state.mesh, state.rest_vertices
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
@@ -307,8 +309,12 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
 
     geometry = (mesh.faces, mesh.n_vertices, mesh.n_faces, rest)  # passed, not closed over (device meshes)
-    table = neighbours if photo and options.weights.consistency and options.device_mesh is None else None
-    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes, table), valid, k, crop, geometry)
+    stereo = None
+    if isinstance(neighbours, tuple):  # (table, the views' stereo depths)
+        neighbours, stereo = neighbours
+    used = options.weights.consistency or (options.weights.stereo and stereo is not None)
+    table = neighbours if photo and used and options.device_mesh is None else None
+    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes, table, stereo), valid, k, crop, geometry)
 
     def step(c: _Carry, _):
         key, sub = jax.random.split(c.key)

@@ -19,6 +19,7 @@ RECORD_KEYS = (
     "containment",
     "consistency",
     "shading_ratio",
+    "stereo",
     "grad_norm",
     "cg_iterations_forward",
     "cg_iterations_backward",
@@ -51,6 +52,7 @@ class StepRecord(eqx.Module):
     containment: Array
     consistency: Array
     shading_ratio: Array
+    stereo: Array
     grad_norm: Array
     cg_iterations_forward: Array
     cg_iterations_backward: Array
@@ -71,7 +73,7 @@ def step_record(loss, terms, gx, info_b, info_f, ok, inverted) -> StepRecord:
     status = jnp.where(ok, jnp.where(info_b.converged & info_f.converged, 0, 1), 2).astype(jnp.int32)
     zero = jnp.zeros((), loss.dtype)
     return StepRecord(
-        loss=loss, **{name: terms.get(name, zero) for name in RECORD_KEYS[1:10]},
+        loss=loss, **{name: terms.get(name, zero) for name in RECORD_KEYS[1:11]},
         grad_norm=jnp.sqrt(jnp.sum(gx * gx)), cg_iterations_forward=info_f.iterations,
         cg_iterations_backward=info_b.iterations, cg_residual=jnp.maximum(info_f.residual, info_b.residual),
         inverted_faces=inverted, status=status,

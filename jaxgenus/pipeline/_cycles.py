@@ -59,7 +59,8 @@ class Level(NamedTuple):
         views, window, pixels: what one step renders (`jaxgenus.optim.step_views`): `views`
             views, whole (`window` 0) or through `window x window` windows; `pixels` in all.
         valid: views split over devices (`jaxgenus.optim.spread_views`): which are real; else None.
-        neighbours: photo targets: `(N, M)` neighbour views of each view (photo-consistency), else None.
+        neighbours: photo targets: `(N, M)` neighbour views of each view (photo-consistency), or
+            `(table, depths (N, h, w))` with the views' stereo depths at this level; else None.
     """
 
     cameras: Cameras
@@ -71,7 +72,7 @@ class Level(NamedTuple):
     window: int = 0
     pixels: int = 0
     valid: jax.Array | None = None
-    neighbours: jax.Array | None = None
+    neighbours: jax.Array | tuple | None = None
 
 
 class CycleOutput(NamedTuple):

@@ -136,7 +136,8 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
         level = np.asarray(finest.targets)
         a = level[..., 3:]
         level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
-        consistency = (finest.cameras, level, np.asarray(finest.neighbours))
+        table = finest.neighbours[0] if isinstance(finest.neighbours, tuple) else finest.neighbours
+        consistency = (finest.cameras, level, np.asarray(table))
     verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
                              None if app is None else (app.albedo, app.lighting), photos,
                              carved_start=start.kind.startswith("visual_hull"), consistency=consistency,

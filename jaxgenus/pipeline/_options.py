@@ -126,6 +126,11 @@ class ReconstructOptions:
             is 0 (ray-cast 10-px colour cells: 41-45 % of the pixels, CD 0.00300 -> 0.00228 on a
             genus-2 shape; smooth albedos 8-18 %, DTU scan65 3-11 %, where the term costs or does
             nothing). 0: never (docs/photometric.md, "Shading ratios").
+        stereo_carve: photo targets on one device: the visual hull loses the space that plane-sweep
+            stereo of the photos shows to be empty (`jaxgenus.capture.stereo_depths`), in front of
+            depths two views agree on, by `stereo_carve` grid cells or more, in two views; so the
+            start has the concavities no silhouette shows (a courtyard). 0: off (docs/photometric.md,
+            "Stereo start").
     """
 
     n_cycles: int = 4
@@ -153,6 +158,7 @@ class ReconstructOptions:
     refit_carve: float = 1.0
     detail_faces: int = 40000
     texture_ratio: float = 6.0
+    stereo_carve: float = 2.0
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
@@ -166,7 +172,7 @@ class ReconstructOptions:
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
-        for name in ("refit_carve", "fine_below", "texture_ratio"):
+        for name in ("refit_carve", "fine_below", "texture_ratio", "stereo_carve"):
             _number(name, getattr(self, name), 0.0, math.inf)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error"):
             _number(name, getattr(self, name), 0.0, 1.0)

@@ -80,7 +80,9 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
     if options.one_jit:  # one program, one image size: the last level throughout
         factors = [factors[-1]] * options.n_cycles
     mesh, order, valid = views_layout(len(cams), options.devices)
-    table = jnp.asarray(view_neighbours(cams)) if _consistency_used(setup, options) else None  # photo-consistency pairs (canonical frame)
+    table = None
+    if _consistency_used(setup, options):  # photo-consistency pairs: views that see the same part of the start
+        table = jnp.asarray(view_neighbours(cams, points=np.asarray(start.to_numpy()[0], np.float64)))
     built = {}
     for f in sorted(set(factors)):
         level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
@@ -97,9 +99,21 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
             else:  # this process holds only its own views' images
                 level, outside = place_held((level, outside), mesh, order, setup.held)
         pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
+        near = table
+        if table is not None and setup.stereo is not None and options.optimize.weights.stereo > 0 and not crop:
+            near = (table, jnp.asarray(_resampled(setup.stereo, f, lc.height, lc.width)))
         built[f] = Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
-                         None if mesh is None else place(jnp.asarray(valid), mesh, split=True), table)
+                         None if mesh is None else place(jnp.asarray(valid), mesh, split=True), near)
     return [built[f] for f in factors]
+
+
+def _resampled(stereo, factor: int, height: int, width: int) -> np.ndarray:
+    """`Setup.stereo`'s depths (at 1/`s` of the fitted images) at the level of `factor`: `(N, height, width)`,
+    each pixel the depth of the stereo pixel its centre falls in."""
+    depth, s = stereo
+    rows = np.minimum(((np.arange(height) + 0.5) * factor / s).astype(int), depth.shape[1] - 1)
+    cols = np.minimum(((np.arange(width) + 0.5) * factor / s).astype(int), depth.shape[2] - 1)
+    return depth[:, rows][:, :, cols].astype(np.float32)
 
 
 def world_lengths(setup: Setup, options: ReconstructOptions, fitted: list[Level]) -> list[float]:

@@ -19,22 +19,25 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, check_targets, cut_views, hull_thickness, pixel_footprint,
-                              scene_frame, visual_hull_bounds)
+from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupancy, check_targets, consistent_depths, cut_views,
+                              hull_occupancy, hull_thickness, pixel_footprint, scene_frame, stereo_depths, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim import (albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
-                            views_layout)
+                            view_neighbours, views_layout)
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
 
-__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "Setup", "detail_budget", "downsampled", "hull_factor", "prepare",
+__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "STEREO_SIZE", "Setup", "detail_budget", "downsampled", "hull_factor", "prepare",
            "texture_share"]
 
 #: Photo-consistency places the surface to a fraction of a pixel where the photos carry texture: the
 #: edge length, in pixels of the fitted images, that `detail_budget` sizes the face budget for (the
 #: finest level `detail_floor` fits photos at with photo-consistency is a quarter of the edge).
 DETAIL_EDGE = 4.0
+#: Plane-sweep stereo for the start runs on the fitted photos downsampled until their longer side is
+#: at most this many pixels (DTU scan24, 41 views: 200x150, about 40 s on 2 CPU cores).
+STEREO_SIZE = 256
 
 
 @dataclasses.dataclass(frozen=True)
@@ -62,6 +65,8 @@ class Setup:
         notes: what the run should warn of, found here (views cut by the frame).
         held: the views (indices into `cams`) `images` and `targets` hold when this process
             holds only some (`reconstruct(..., views=)`); None: all of them.
+        stereo: photo targets on one device: `(depths (N, h, w), factor)`, the plane-sweep depths
+            (canonical frame; NaN: none) of `targets.fit` downsampled by `factor`; else None.
     """
 
     images: object
@@ -79,6 +84,7 @@ class Setup:
     options: ReconstructOptions
     notes: tuple[str, ...] = ()
     held: np.ndarray | None = None
+    stereo: tuple[np.ndarray, int] | None = None
 
     def held_cams(self) -> Cameras:
         """The cameras (canonical frame) of the views this process holds."""
@@ -197,6 +203,37 @@ def _textured(options: ReconstructOptions, tg: Targets, n_views: int, say) -> Re
     return options.updated(shading_ratio=options.texture_ratio)
 
 
+def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras, options: ReconstructOptions, say):
+    """`(carve, stereo)`: the carving of the visual hull by plane-sweep stereo of the photos
+    (`ReconstructOptions.stereo_carve`) as a map of occupancy grids, and `Setup.stereo`; `(None, None)`
+    for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over devices."""
+    if (tg.kind != "photo" or (options.stereo_carve <= 0 and options.optimize.weights.stereo <= 0)
+            or views_layout(len(cams), options.devices)[0] is not None):
+        return None, None
+    factor = 1
+    while max(cams.height, cams.width) / factor > STEREO_SIZE:
+        factor *= 2
+    photos, scaled = np.asarray(pyramid_level(tg.fit, factor)), scaled_cameras(cams, factor)
+    coarse = hull_occupancy(alpha, hull_cams, resolution=32, bounds=bounds)
+    table = view_neighbours(scaled, points=coarse.lo + coarse.cell * np.argwhere(coarse.values >= 0.5))
+    depths = consistent_depths(stereo_depths(photos, scaled, table, bounds), scaled, table)
+    kept = float(np.mean(np.isfinite(depths.depth[photos[..., 3] >= 0.5])))
+    said = []
+
+    if options.stereo_carve <= 0:
+        say(f"stereo: depths of {kept:.0%} of the masks' pixels at {scaled.width}x{scaled.height}, two views agreeing")
+
+    def carve(grid):
+        carved, share = carved_occupancy(grid, depths, scaled, margin=options.stereo_carve * grid.cell)
+        if not said:
+            said.append(share)
+            say(f"stereo: depths of {kept:.0%} of the masks' pixels at {scaled.width}x{scaled.height}, two views "
+                f"agreeing; they empty {share:.1%} of the visual hull (stereo_carve=0: off)")
+        return carved
+
+    return (carve if options.stereo_carve > 0 else None), (depths.depth, factor)
+
+
 def hull_factor(alpha, resolutions: tuple[int, ...]) -> int:
     """The pyramid factor the silhouettes are read at for the frame, the bounds and the visual hulls:
     the largest power of two that leaves the silhouettes' median extent (the longer side of their
@@ -291,7 +328,8 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     hull_cams = scaled_cameras(canonical, factor)
     lo, hi = visual_hull_bounds(alpha, hull_cams)
     pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
-    hulls = HullTable(alpha, hull_cams, (lo, hi))
+    carve, stereo = _stereo_carve(tg, canonical, (lo, hi), alpha, hull_cams, options, say)
+    hulls = HullTable(alpha, hull_cams, (lo, hi), carve)
     notes = _cut_note(alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
     thickness, fine = _thin(canonical, hulls, pixel, options, say)
@@ -300,4 +338,4 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options,
-                 notes=notes, held=held)
+                 notes=notes, held=held, stereo=stereo)

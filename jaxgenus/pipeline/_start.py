@@ -56,19 +56,24 @@ class HullTable:
     genus estimate, the thin-structure test and the start share its hulls); the occupancy grid of
     a resolution is sampled once and closed as each closing asks."""
 
-    def __init__(self, alpha, cams: Cameras, bounds):
+    def __init__(self, alpha, cams: Cameras, bounds, carve=None):
         self._alpha, self._cams, self._bounds, self._built, self._grids = alpha, cams, bounds, {}, {}
+        self._carve = carve  # None, or a map of a `HullOccupancy` to the one the fit starts from
+
+    def occupancy(self, resolution: int):
+        """The occupancy grid of `resolution` (carved when the table was given `carve`)."""
+        if resolution not in self._grids:
+            grid = hull_occupancy(self._alpha, self._cams, resolution=resolution, bounds=self._bounds)
+            self._grids[resolution] = grid if self._carve is None else self._carve(grid)
+        return self._grids[resolution]
 
     def get(self, resolution: int, closing: int) -> tuple[Mesh | None, int]:
         """`(hull, genus)`, or `(None, -1)` when there is no hull at that grid."""
         key = (resolution, closing)
         if key not in self._built:
             try:
-                if resolution not in self._grids:
-                    self._grids[resolution] = hull_occupancy(self._alpha, self._cams, resolution=resolution,
-                                                             bounds=self._bounds)
                 hull = largest_component(visual_hull(self._alpha, self._cams, closing=closing,
-                                                     occupancy=self._grids[resolution]))
+                                                     occupancy=self.occupancy(resolution)))
                 self._built[key] = (hull, mesh_genus(hull))
             except ValueError:
                 self._built[key] = (None, -1)
