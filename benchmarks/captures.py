@@ -13,7 +13,8 @@ per run (`--masks-only`: `--images train/mask`, silhouettes alone). Per run: wal
 memory, the first ETA the progress line printed against the time that really remained after
 it, the result's faces and exit code, and the held-out re-projection PSNR
 (`jaxgenus.metrics.reprojection_psnr`: the training photos at full size predicted onto the
-held-out views through the mesh, object pixels, evaluated at 1/`--eval-downsample`).
+held-out views through the mesh, object pixels, evaluated at 1/`--eval-downsample`; "inside":
+over the pixels both the held-out mask and the mesh cover, the surface without its outline).
 Writes OUT/captures.{json,md,png} (time against pixels, log-log, with the 2x-per-4x line).
 `--processes P`: P processes joined by `jax.distributed` on this host (one CPU device each, each
 reading only its views); the peak memory is the largest process's.
@@ -132,14 +133,15 @@ def run_one(out: Path, genus: str, downsample: int, cli_args: list[str], tag: st
 
 def write_report(rows: list[dict], out: Path) -> None:
     head = ("| run | downsample | fitted size | exit | seconds | time / full-size | peak RSS GB | first ETA s | "
-            "remaining s | ETA / remaining | held-out PSNR dB | coverage |\n|" + "---|" * 12 + "\n")
+            "remaining s | ETA / remaining | held-out PSNR dB | inside dB | coverage |\n|" + "---|" * 13 + "\n")
     full = {r["args_key"]: r["seconds"] for r in rows if r["downsample"] == 1}
     lines = []
     for r in rows:
         ratio = r["seconds"] / full[r["args_key"]] if r["args_key"] in full else float("nan")
         eta = (f"{r['first_eta']:.0f} | {r['remaining']:.0f} | {r['first_eta'] / r['remaining']:.2f}"
                if r["first_eta"] is not None else "- | - | -")
-        psnr = f"{r['psnr']:.2f} | {r['coverage']:.3f}" if r.get("psnr") is not None else "- | -"
+        inside = f"{r['psnr_inside']:.2f}" if r.get("psnr_inside") is not None else "-"
+        psnr = f"{r['psnr']:.2f} | {inside} | {r['coverage']:.3f}" if r.get("psnr") is not None else "- | - | -"
         lines.append(f"| {r['tag']} | {r['downsample']} | {r['size']} | {r['exit']} | {r['seconds']:.0f} | "
                      f"{ratio:.2f} | {r['peak_rss_gb']:.2f} | {eta} | {psnr} |")
     publish(out / "captures.md", head + "\n".join(lines) + "\n")
@@ -197,9 +199,10 @@ def main():
             if row["mesh"]:
                 v, f = jg.load_mesh(row["mesh"]).to_numpy()
                 r = reprojection_psnr((v, f), photos, cams, hp, hc, hm, downsample=args.eval_downsample)
-                row.update(psnr=r.mean, coverage=float(np.mean(r.coverage)), psnr_views=r.psnr.tolist())
+                row.update(psnr=r.mean, psnr_inside=float(np.mean(r.psnr_inside)), coverage=float(np.mean(r.coverage)),
+                           psnr_views=r.psnr.tolist())
             print(json.dumps({k: row[k] for k in ("tag", "exit", "seconds", "peak_rss_gb", "first_eta",
-                                                    "remaining") if k in row} | {"psnr": row.get("psnr")}),
+                                                    "remaining") if k in row} | {"psnr": row.get("psnr"), "psnr_inside": row.get("psnr_inside")}),
                   flush=True)
             rows = [r for r in rows if r["tag"] != tag] + [row]
             saved.write_text(json.dumps(rows, indent=1))

@@ -127,6 +127,21 @@ def test_containment_penalty_zero_inside_pulls_a_spike_back_and_gradient():
             float(pen(jnp.asarray(spiked))))
 
 
+def test_containment_beyond_the_frame_pulls_only_where_the_silhouette_ends_inside_it():
+    """One camera looking down -z; its silhouette fills the left half of the image and runs into
+    the left border (an object cut by the frame) but not into the right one."""
+    cams = jg.Cameras(jnp.eye(3)[None], jnp.asarray([[0.0, 0.0, 4.0]]), jnp.asarray([[40.0, 40.0]]),
+                      jnp.asarray([[20.0, 20.0]]), 40, 40)
+    alpha = np.zeros((1, 40, 40), np.float32)
+    alpha[:, 5:35, :20] = 1.0
+    out = jnp.asarray(jg.outside_distance(alpha))
+    # x = -3 and +3 at depth 4 project to u = -10 and 50: beyond the left and the right border
+    left, right = np.array([[-3.0, 0.0, 0.0]]), np.array([[3.0, 0.0, 0.0]])
+    one = jnp.ones(1, bool)
+    assert float(jg.containment_penalty(jnp.asarray(left), one, cams, out)) == 0.0  # nothing known there
+    assert float(jg.containment_penalty(jnp.asarray(right), one, cams, out)) > 20.0  # known empty up to the border
+
+
 def test_image_loss_values_and_gradient():
     rng = np.random.default_rng(2)
     with jax.enable_x64(True):

@@ -61,3 +61,23 @@ def test_bad_input_is_named(capture):
         reprojection_psnr(tm, photos, cams, photos[:2], cams[np.array([0, 1])], photos[:2, :4, :4, 3])
     with pytest.raises(ValueError, match="mesh"):
         reprojection_psnr((np.full((3, 3), np.nan), [[0, 1, 2]]), photos, cams, photos[:1], cams[np.array([0])])
+
+
+def test_views_that_cut_the_object_hand_over_to_views_that_see_it(capture):
+    """The two training views nearest the held-out one zoomed in (the torus runs out of their
+    frames): every held-out pixel is still predicted, from the nearest views that see its point."""
+    tm, cams, photos = capture
+    held = [3]
+    train = np.array([i for i in range(len(cams)) if i not in held])
+    centres = -np.einsum("nji,nj->ni", np.asarray(cams.rotation), np.asarray(cams.translation))
+    nearest = train[np.argsort(-(centres[train] @ centres[held[0]]))[:2]]  # zoomed in: the torus runs out
+    zoom = np.where(np.isin(train, nearest), 2.5, 1.0)[:, None]
+    tc = jg.Cameras(cams.rotation[train], cams.translation[train], cams.focal[train] * zoom,
+                    cams.principal_point[train], cams.height, cams.width)
+    tp = raycast_lambert(tc, tm, light_direction=(0.3, 0.5, 1.0), ambient=0.6, albedo=_stripes)
+    hc, hp = cams[np.array(held)], photos[held]
+    r = reprojection_psnr(tm, tp[..., :3], tc, hp[..., :3], hc, hp[..., 3], neighbours=1)
+    assert np.all(r.coverage > 0.99) and r.mean > 17.0, r  # the zoomed views alone: coverage 0.25, 7.5 dB
+    assert np.all(r.psnr_inside >= r.psnr - 1e-6)  # the true mesh's outline is the mask's
+    bare = reprojection_psnr(tm, tp[..., :3], tc, hp[..., :3], hc, neighbours=1)
+    np.testing.assert_allclose(bare.psnr_inside, bare.psnr)  # no masks: the mesh's pixels both times

@@ -2,8 +2,9 @@
 
 `reprojection_psnr` predicts each held-out photo from the training photos through the
 mesh: a ray through every held-out pixel finds the surface point it sees, that point
-is projected into the training views nearest in viewing direction, kept where no other
-part of the mesh hides it from that view, and the training colours found there
+is projected into the training views nearest in viewing direction that see it (inside
+their frame, no other part of the mesh hiding it: an object cut by the frames is still
+predicted from the nearest views that hold it), and the training colours found there
 (bilinear) are blended, nearer directions weighing more. The PSNR of that prediction
 against the held-out photo, over the object's pixels, measures the geometry: a wrong
 surface sends each view's colours to the wrong place. No texture is fitted and no
@@ -30,11 +31,14 @@ class Reprojection(NamedTuple):
         coverage: `(M,)` share of those pixels that some training view saw; the rest
             were predicted black (a mesh that misses the object pays for it).
         pixels: `(M,)` evaluated pixels: the held-out mask or the mesh, whichever covers them.
+        psnr_inside: `(M,)` dB over the pixels both the held-out mask and the mesh cover (the
+            surface's placement alone, without its outline; with no masks, as `psnr`).
     """
 
     psnr: np.ndarray
     coverage: np.ndarray
     pixels: np.ndarray
+    psnr_inside: np.ndarray
 
     @property
     def mean(self) -> float:
@@ -111,7 +115,8 @@ def reprojection_psnr(mesh, photos, cameras: Cameras, held_photos, held_cameras:
         held_photos, held_cameras: the held-out photos `(M, H', W', 3|4)` and cameras.
         held_masks: `(M, H', W')` object masks of the held-out photos (> 0.5: object), or
             None: the pixels the mesh covers are evaluated.
-        neighbours: training views blended per held-out view (nearest viewing directions).
+        neighbours: training views blended per pixel: the nearest in viewing direction (of the
+            held-out view) that see its surface point.
         downsample: evaluate at one pixel per `downsample x downsample` block (block means
             of the held-out photo and mask; the training photos are sampled at full size).
     """
@@ -149,31 +154,39 @@ def reprojection_psnr(mesh, photos, cameras: Cameras, held_photos, held_cameras:
         hit[ray] = True
         points = np.zeros((len(d), 3))
         points[ray] = loc
-        near = np.argsort(np.einsum("ni,i->n", _unit(centre_s), _unit(centre_h[m])))[::-1][:neighbours]
-        colour, weight = np.zeros((len(d), 3)), np.zeros(len(d))
-        p = points[hit]
-        for s in near:
+        order = np.argsort(np.einsum("ni,i->n", _unit(centre_s), _unit(centre_h[m])))[::-1]
+        colour, weight, count = np.zeros((len(d), 3)), np.zeros(len(d)), np.zeros(len(d), np.int64)
+        for s in order:  # nearest directions first, each point until `neighbours` views saw it
+            idx = np.flatnonzero(hit & (count < neighbours))
+            if len(idx) == 0:
+                break
+            p = points[idx]
             x = p @ r_s[s].T + t_s[s]
             z = np.maximum(x[:, 2], 1e-12)
             u, v = f_s[s, 0] * x[:, 0] / z + c_s[s, 0], f_s[s, 1] * x[:, 1] / z + c_s[s, 1]
             inside = (x[:, 2] > 0) & (u >= 0) & (u < cameras.width) & (v >= 0) & (v < cameras.height)
             to_cam = centre_s[s] - p
             dist = np.linalg.norm(to_cam, axis=1)
-            seen = inside & _unoccluded(rays, p, to_cam / dist[:, None], dist, tol)
+            seen = inside.copy()
+            seen[inside] = _unoccluded(rays, p[inside], to_cam[inside] / dist[inside, None], dist[inside], tol)
             cos = np.einsum("ni,ni->n", to_cam / dist[:, None], _unit(centre_h[m] - p))
-            wgt = np.where(seen, 1.0 / (np.arccos(np.clip(cos, -1, 1)) + 1e-2), 0.0)
-            idx = np.flatnonzero(hit)[seen]
-            colour[idx] += wgt[seen, None] * _bilinear(src[s], u[seen], v[seen])
-            weight[idx] += wgt[seen]
+            wgt = 1.0 / (np.arccos(np.clip(cos[seen], -1, 1)) + 1e-2)
+            colour[idx[seen]] += wgt[:, None] * _bilinear(src[s], u[seen], v[seen])
+            weight[idx[seen]] += wgt
+            count[idx[seen]] += 1
         seen_any = weight > 0
         pred = np.where(seen_any[:, None], colour / np.maximum(weight, 1e-12)[:, None], 0.0)
-        region = hit if held_masks is None else hit | (_blocks(held_masks[m][..., None], downsample).ravel() > 0.5)
-        err = (pred - target.reshape(-1, 3))[region]
-        mse = max(float(np.mean(err**2)) if len(err) else 0.0, 1e-10)
-        out.append((-10.0 * np.log10(mse), float(np.mean(seen_any[region])) if region.any() else 0.0,
-                    int(region.sum())))
-    psnr, coverage, pixels = (np.array(c) for c in zip(*out))
-    return Reprojection(psnr, coverage, pixels)
+        mask = hit if held_masks is None else _blocks(held_masks[m][..., None], downsample).ravel() > 0.5
+        region, inside = hit | mask, hit & mask
+        sq = np.mean((pred - target.reshape(-1, 3)) ** 2, axis=1)
+        out.append((_psnr(sq[region]), float(np.mean(seen_any[region])) if region.any() else 0.0,
+                    int(region.sum()), _psnr(sq[inside])))
+    psnr, coverage, pixels, psnr_inside = (np.array(c) for c in zip(*out))
+    return Reprojection(psnr, coverage, pixels, psnr_inside)
+
+
+def _psnr(squared_errors: np.ndarray) -> float:
+    return -10.0 * np.log10(max(float(np.mean(squared_errors)) if len(squared_errors) else 0.0, 1e-10))
 
 
 def _unit(x: np.ndarray) -> np.ndarray:

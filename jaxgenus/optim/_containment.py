@@ -12,7 +12,9 @@ the nearest silhouette pixel (alpha above a threshold; 0 there);
 `containment_penalty` is the sum over the views, averaged over the live
 vertices, of the Huber function (1 px) of `max(0, d(x) - margin)`, with `d` the
 map sampled bilinearly at the vertex's projection (beyond the image border: the
-border's value plus the distance to it). Zero for a mesh inside its visual hull
+border's value plus the distance to it, where the border pixel is outside the
+silhouette; where the silhouette runs into the border, an object cut by the
+frame, the border's value: nothing is known beyond it). Zero for a mesh inside its visual hull
 (up to `margin` pixels). `LossWeights.containment` is 0 by default: where the
 term dominates a vertex whose image gradient is tiny, uniform Adam can turn it
 into a folding step (docs/reconstruction.md).
@@ -72,7 +74,11 @@ def containment_penalty(
     def sample(image, q):
         return jax.scipy.ndimage.map_coordinates(image, [q[:, 0], q[:, 1]], order=1, mode="nearest")
 
-    d = jax.vmap(sample)(outside.astype(p.dtype), clamped) + beyond
+    border = jax.vmap(sample)(outside.astype(p.dtype), clamped)
+    # beyond the frame the map goes on from the border pixel, where that pixel is outside the
+    # silhouette; where the silhouette runs into the border the object is cut by the frame and
+    # nothing is known beyond it (no pull)
+    d = border + beyond * jnp.clip(border - margin, 0.0, 1.0)
     excess = jnp.maximum(d - margin, 0.0)
     huber = jnp.where(excess < 1.0, 0.5 * excess * excess, excess - 0.5)
     live = vertex_mask[None, :] & (z > 0)
