@@ -78,7 +78,7 @@ def containment_penalty(
     # beyond the frame the map goes on from the border pixel, where that pixel is outside the
     # silhouette; where the silhouette runs into the border the object is cut by the frame and
     # nothing is known beyond it (no pull)
-    d = border + beyond * jnp.clip(border - margin, 0.0, 1.0)
+    d = border + beyond * jnp.clip(border, 0.0, 1.0)
     excess = jnp.maximum(d - margin, 0.0)
     huber = jnp.where(excess < 1.0, 0.5 * excess * excess, excess - 0.5)
     live = vertex_mask[None, :] & (z > 0)
