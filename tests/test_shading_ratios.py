@@ -130,3 +130,34 @@ def test_fine_textures_turn_the_term_on(scene):
     assert texture_share(photos["constant"]) < 0.1 * FINE_TEXTURE
     with pytest.raises(ValueError, match="texture_ratio"):
         jg.ReconstructOptions(texture_ratio=-1.0)
+    with pytest.raises(ValueError, match="texture_alpha"):
+        jg.ReconstructOptions(texture_alpha=-1.0)
+
+
+def test_fine_textures_weigh_the_silhouettes_more(scene):
+    """For photos of a fine texture the fit raises the silhouette weight to `texture_alpha` and turns
+    shading ratios on, each only where the caller left it at its default; smooth photos keep both, and
+    so do cells the finest level fitted blurs (the share is measured on the images the fit sees)."""
+    from jaxgenus.optim import pyramid_level
+    from jaxgenus.pipeline._setup import FINE_TEXTURE, fine_texture, texture_share
+
+    cams, photos, _ = scene
+    base = jg.ReconstructOptions()
+
+    def weights(name, options, factor=1):
+        lines, level = [], photos[name] if isinstance(name, str) else name
+        level = level if factor == 1 else pyramid_level(level, factor)
+        w = fine_texture(options, "photo", level, len(cams), lines.append).optimize.weights
+        return w.alpha, w.shading_ratio, lines
+
+    alpha, ratio, said = weights("cells", base)
+    assert (alpha, ratio) == (base.texture_alpha, base.texture_ratio) == (4.0, 6.0) and len(said) == 1, said
+    assert "silhouette weight 4" in said[0] and "shading ratios on" in said[0]
+    assert weights("cells", base.updated(alpha=2.0, shading_ratio=1.5)) == (2.0, 1.5, [])  # the caller's kept
+    assert weights("cells", base.updated(texture_alpha=0.0, texture_ratio=0.0)) == (1.0, 0.0, [])
+    assert weights("constant", base) == (1.0, 0.0, [])
+    # the same cells at 4x the size (44 px): few pixels on an edge; fitted at 1/4 they are fine again
+    big = jnp.repeat(jnp.repeat(photos["cells"], 4, axis=1), 4, axis=2)
+    assert texture_share(big) < 0.5 * FINE_TEXTURE
+    assert weights(big, base)[:2] == (1.0, 0.0) and weights(big, base, factor=4)[:2] == (4.0, 6.0)
+    assert fine_texture(base, "normals", photos["cells"], len(cams), print) is base

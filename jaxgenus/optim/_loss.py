@@ -52,7 +52,8 @@ class LossWeights:
 
     Attributes:
         alpha, normal: the image terms (each a mean over the pixels, so O(1) and
-            resolution-independent).
+            resolution-independent). `reconstruct` sets `alpha` to 4 for photos of a fine texture
+            (`ReconstructOptions.texture_alpha`).
         bilaplacian: `||L x||^2`, a sum over the vertices (default 0: the large-steps
             parametrization already smooths; e.g. `1e-2 / n_vertices` penalizes curvature).
         inversion: triangle inversion (zero unless a triangle flips; one face folded flat

@@ -20,7 +20,7 @@ from jaxgenus.pipeline._cycles import CycleRun, Level, run_one_jit, run_per_cycl
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._schedule import CostModel, levels as fit_levels, schedule_line, world_lengths
-from jaxgenus.pipeline._setup import Setup
+from jaxgenus.pipeline._setup import Setup, fine_texture
 from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
 from jaxgenus.rendering import LIGHTING_SHAPES
@@ -110,6 +110,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
     levels = fit_levels(setup, options, start.mesh)
+    options = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say)
     lengths = world_lengths(setup, options, levels)
     where = dict(n_cycles=options.n_cycles, fit=index.fit, fits=index.fits)
     frame = setup.frame

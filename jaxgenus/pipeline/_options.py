@@ -121,11 +121,17 @@ class ReconstructOptions:
             DTU scan65 at 1600x1200 on 2 CPU cores, 12k faces: 196 s, 6.9 GB, 40k: 431 s,
             8.7 GB). 0, or any value not above `max_faces`, holds the budget at `max_faces`.
         texture_ratio: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`, the jumps
-            themselves) cover `FINE_TEXTURE` (30 %) of the masks or more, a texture finer than the
-            mesh's albedo holds, are fitted with `LossWeights.shading_ratio` at this weight when it
-            is 0 (ray-cast 10-px colour cells: 41-45 % of the pixels, CD 0.00300 -> 0.00228 on a
-            genus-2 shape; smooth albedos 8-18 %, DTU scan65 3-11 %, where the term costs or does
-            nothing). 0: never (docs/photometric.md, "Shading ratios").
+            themselves) cover `FINE_TEXTURE` (30 %) of the masks or more in the finest images a fit
+            sees, a texture finer than the mesh's albedo holds, are fitted with
+            `LossWeights.shading_ratio` at this weight when it is 0 (ray-cast 10-px colour cells: 41-45 %
+            of the pixels, CD 0.00300 -> 0.00228 on a genus-2 shape; DTU scan24 35 % at 400x300;
+            smooth albedos 8-18 %, DTU scan65 3-11 %, where the term costs or does nothing). 0: never
+            (docs/photometric.md, "Shading ratios").
+        texture_alpha: the silhouette weight (`LossWeights.alpha`) for photos of such a fine texture,
+            when it is at its default (1): where shading cannot explain the photos, the outline the
+            masks give weighs more (DTU scan24 at 1600x1200: 20.97 -> 21.32 dB held-out; ray-cast
+            10-px cells on two genus-2 shapes: CD 0.00228 -> 0.00204, 0.00194 -> 0.00161; on smooth
+            albedos it costs, and they stay under the share). 0: never (docs/photometric.md, "Shading ratios").
         stereo_carve: photo targets on one device: the visual hull loses the space that plane-sweep
             stereo of the photos shows to be empty (`jaxgenus.capture.stereo_depths`), in front of
             depths two views agree on, by `stereo_carve` grid cells or more, in two views; so the
@@ -158,6 +164,7 @@ class ReconstructOptions:
     refit_carve: float = 1.0
     detail_faces: int = 40000
     texture_ratio: float = 6.0
+    texture_alpha: float = 4.0
     stereo_carve: float = 2.0
 
     def __post_init__(self):
@@ -172,7 +179,7 @@ class ReconstructOptions:
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
-        for name in ("refit_carve", "fine_below", "texture_ratio", "stereo_carve"):
+        for name in ("refit_carve", "fine_below", "texture_ratio", "texture_alpha", "stereo_carve"):
             _number(name, getattr(self, name), 0.0, math.inf)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error"):
             _number(name, getattr(self, name), 0.0, 1.0)

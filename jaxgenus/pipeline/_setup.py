@@ -22,14 +22,14 @@ import numpy as np
 from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupancy, check_targets, consistent_depths, cut_views,
                               hull_occupancy, hull_thickness, pixel_footprint, scene_frame, stereo_depths, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
-from jaxgenus.optim import (albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
+from jaxgenus.optim import (LossWeights, albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
                             view_neighbours, views_layout)
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
 
-__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "STEREO_SIZE", "Setup", "detail_budget", "downsampled", "hull_factor", "prepare",
-           "texture_share"]
+__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "STEREO_SIZE", "Setup", "detail_budget", "downsampled", "fine_texture",
+           "hull_factor", "prepare", "texture_share"]
 
 #: Photo-consistency places the surface to a fraction of a pixel where the photos carry texture: the
 #: edge length, in pixels of the fitted images, that `detail_budget` sizes the face budget for (the
@@ -189,18 +189,30 @@ def texture_share(photos) -> float:
     return marked / max(inside, 1)
 
 
-def _textured(options: ReconstructOptions, tg: Targets, n_views: int, say) -> ReconstructOptions:
-    """`options` with `shading_ratio` at `texture_ratio` for photos of a fine texture (said when set), on
-    one device (each process of a split run holds only its own views to judge by)."""
-    if (tg.kind != "photo" or options.texture_ratio <= 0 or options.optimize.weights.shading_ratio > 0
-            or views_layout(n_views, options.devices)[0] is not None):
+def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, say: Callable[[str], None]
+                 ) -> ReconstructOptions:
+    """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
+    edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets on one device, as
+    a process of a split run holds only its own views): `shading_ratio` at `texture_ratio` where it is 0,
+    the silhouette weight `alpha` at `texture_alpha` where it is at its default. The share is measured
+    on the images the fit sees: a texture the finest level blurs away is no fine texture."""
+    if kind != "photo" or views_layout(n_views, options.devices)[0] is not None:
         return options
-    share = texture_share(tg.fit)
+    weights, change, said = options.optimize.weights, {}, []
+    if options.texture_ratio > 0 and weights.shading_ratio == 0:
+        change["shading_ratio"] = options.texture_ratio
+        said.append(f"shading ratios on, weight {options.texture_ratio:g} (texture_ratio=0 / --shading-ratio 0: off)")
+    if options.texture_alpha > 0 and weights.alpha == LossWeights().alpha != options.texture_alpha:
+        change["alpha"] = options.texture_alpha
+        said.append(f"silhouette weight {options.texture_alpha:g} (texture_alpha=0: as set)")
+    if not change:
+        return options
+    share = texture_share(photos)
     if share < FINE_TEXTURE:
         return options
-    say(f"fine texture: albedo edges cover {share:.0%} of the photos' masks (>= {FINE_TEXTURE:.0%}): shading ratios "
-        f"on, weight {options.texture_ratio:g} (texture_ratio=0 / --shading-ratio 0: off)")
-    return options.updated(shading_ratio=options.texture_ratio)
+    say(f"fine texture: albedo edges cover {share:.0%} of the masks of the finest images fitted "
+        f"(>= {FINE_TEXTURE:.0%}): " + "; ".join(said))
+    return options.updated(**change)
 
 
 def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras, options: ReconstructOptions, say):
@@ -334,7 +346,6 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     estimate = _estimated(hulls, options, say) if genus is None else None
     thickness, fine = _thin(canonical, hulls, pixel, options, say)
     options = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, say)
-    options = _textured(options, tg, len(cams), say)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options,
