@@ -161,3 +161,18 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     assert texture_share(big) < 0.5 * FINE_TEXTURE
     assert weights(big, base)[:2] == (1.0, 0.0) and weights(big, base, factor=4)[:2] == (4.0, 6.0)
     assert fine_texture(base, "normals", photos["cells"], len(cams), print) is base
+
+
+def test_stereo_carves_only_photos_of_a_fine_texture(scene):
+    """Plane-sweep stereo carves the start only from photos of a fine texture (smooth shading can make two
+    views agree on a wrong depth); the stereo depth term stays on for both."""
+    from jaxgenus.pipeline._setup import prepare
+
+    cams, photos, _ = scene
+    for name, carves in (("cells", True), ("constant", False)):
+        lines = []
+        setup = prepare(photos[name], cams, 1, "photo", jg.ReconstructOptions(fine_below=0.0), lines.append)
+        setup.hulls.occupancy(48)  # the carving runs when a hull is first built
+        said = [x for x in lines if x.startswith("stereo")]
+        assert len(said) == 1 and ("no carving" not in said[0]) == carves, said
+        assert setup.stereo is not None

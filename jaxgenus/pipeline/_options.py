@@ -135,8 +135,9 @@ class ReconstructOptions:
         stereo_carve: photo targets on one device: the visual hull loses the space that plane-sweep
             stereo of the photos shows to be empty (`jaxgenus.capture.stereo_depths`), in front of
             depths two views agree on, by `stereo_carve` grid cells or more, in two views; so the
-            start has the concavities no silhouette shows (a courtyard). 0: off (docs/photometric.md,
-            "Stereo start").
+            start has the concavities no silhouette shows (a courtyard). Only for photos of a fine
+            texture at the stereo size (`FINE_TEXTURE`): smooth shading gives wrong depths two views
+            agree on. 0: off (docs/photometric.md, "Stereo: the start and a depth term").
     """
 
     n_cycles: int = 4
