@@ -168,13 +168,23 @@ def _warp_one(depth, covered, ref_cam, ref_img, nb_cam, nb_img, nb_depth):
     return ref_img[..., 0], sample[..., 0], valid
 
 
+def _blurred(img):
+    """`(K, H, W, C)` blurred by the binomial kernel [1, 4, 6, 4, 1] / 16 along both axes (sigma 1 px,
+    edges clamped): sampled texture is band-limited before it is compared and interpolated."""
+    k = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
+    for axis in (1, 2):
+        n = img.shape[axis]
+        pad = [(0, 0)] * img.ndim
+        pad[axis] = (2, 2)
+        p = jnp.pad(img, pad, mode="edge")
+        img = sum(w * jax.lax.slice_in_dim(p, i, i + n, axis=axis) for i, w in enumerate(k))
+    return img
+
+
 def _straight_grey(photos):
-    """`(K, H, W, 2)`: the grey level divided by the mask (straight, not premultiplied: no background
-    darkens the contour), and the mask. Not blurred: each image blurred in its own pixels is a
-    different blur of the surface's texture where the two views foreshorten it differently, and NCC
-    then prefers a surface that evens out the blurs over the true one (docs/photometric.md,
-    "No blur")."""
-    g = jnp.stack([_grey(photos[..., :3]), photos[..., 3]], -1)
+    """`(K, H, W, 2)`: the blurred grey level, divided by the blurred mask (no background bleeds in
+    at the contour), and the blurred mask."""
+    g = _blurred(jnp.stack([_grey(photos[..., :3]), photos[..., 3]], -1))
     return jnp.stack([g[..., 0] / jnp.maximum(g[..., 1], 1e-3), g[..., 1]], -1)
 
 
