@@ -28,12 +28,27 @@ def scene():
     return cams, jnp.asarray(photos), view_neighbours(cams)
 
 
-def _loss(mesh, cams, photos, table, gain=1.0):
+def _smoothed(photos):
+    """`photos` blurred by the binomial kernel [1, 4, 6, 4, 1] / 16 along both image axes (edges
+    clamped), written here in NumPy: the unblurred term's value is smooth enough in the vertices for
+    central differences only on smooth photos (on these 96² cells the bilinear sampling's kinks put
+    them 21 % off)."""
+    k = np.asarray([1.0, 4.0, 6.0, 4.0, 1.0]) / 16.0
+    x = np.asarray(photos, np.float64)
+    for axis in (1, 2):
+        pad = [(0, 0)] * x.ndim
+        pad[axis] = (2, 2)
+        p = np.pad(x, pad, mode="edge")
+        x = sum(w * np.take(p, np.arange(i, i + x.shape[axis]), axis=axis) for i, w in enumerate(k))
+    return x
+
+
+def _loss(mesh, cams, photos, table, gain=1.0, blur=1.0):
     nb = jnp.asarray(table[:, 0])
     r = jg.render(mesh, cams, channels=("alpha", "depth"))
     nd = jg.render(mesh, cams[nb], channels=("depth", "alpha"))
     return photo_consistency(r[..., 1], r[..., 0], cams, photos * jnp.asarray([gain, gain, gain, 1.0]), cams[nb],
-                             photos[nb], nd)
+                             photos[nb], nd, blur=blur)
 
 
 def test_neighbours_are_nearby_views_not_itself(scene):
@@ -48,32 +63,45 @@ def test_neighbours_are_nearby_views_not_itself(scene):
     assert view_neighbours(lone).tolist() == [[0, 0, 0, 0]]  # no neighbour: paired with itself (no signal)
 
 
-def test_minimum_at_the_true_surface_and_exposure_invariant(scene):
+@pytest.mark.parametrize("blur", [1.0, 0.0])
+def test_minimum_at_the_true_surface_and_exposure_invariant(scene, blur):
     cams, photos, table = scene
-    losses = {s: float(_loss(torus(1.0, 0.35 * s, 64, 32), cams, photos, table)[0]) for s in (0.9, 0.97, 1.0, 1.03, 1.1)}
+    losses = {s: float(_loss(torus(1.0, 0.35 * s, 64, 32), cams, photos, table, blur=blur)[0])
+              for s in (0.9, 0.97, 1.0, 1.03, 1.1)}
     assert losses[1.0] < 0.85 * min(losses[0.97], losses[1.03]) and losses[1.0] < 0.5 * min(losses[0.9], losses[1.1]), losses
-    darker, count = _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, gain=0.6)  # one view's exposure changed
+    darker, count = _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, gain=0.6, blur=blur)  # exposure changed
     assert abs(float(darker) - losses[1.0]) < 0.02 and float(count) > 100
+    if blur == 0.0:  # half a blur lies between none and all of it
+        half = float(_loss(torus(1.0, 0.35, 64, 32), cams, photos, table, blur=0.5)[0])
+        full = float(_loss(torus(1.0, 0.35, 64, 32), cams, photos, table)[0])
+        assert min(full, losses[1.0]) < half < max(full, losses[1.0]), (full, half, losses[1.0])
+        with pytest.raises(ValueError, match="blur"):
+            _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, blur=1.5)
+        with pytest.raises(ValueError, match="consistency_blur"):
+            jg.LossWeights(consistency_blur=2.0)
 
 
-@pytest.mark.parametrize("splat", ["default", "jax"])
-def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, splat):
+@pytest.mark.parametrize("splat, blur", [("default", 1.0), ("jax", 1.0), ("default", 0.0)])
+def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, splat, blur):
     """Both renderer paths: the default (native kernel on CPU) and the JAX splat with one fixed plan
-    (the GPU path; a plan per call would differ between the traced and the concrete evaluations)."""
+    (the GPU path; a plan per call would differ between the traced and the concrete evaluations).
+    Unblurred (`blur` 0, as for a fine texture) on photos this test smooths itself (`_smoothed`)."""
     cams, photos, table = scene
     if splat == "default" and jax.default_backend() != "cpu":
         pytest.skip("off CPU the default path plans per call; the 'jax' case covers it")
     with jax.enable_x64(True):
         m = torus(1.0, 0.35 * 1.04, 32, 16, dtype=jnp.float64)
         c64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), cams)
-        p64, nb = jnp.asarray(photos, jnp.float64), jnp.asarray(table[:, 0])
+        p64 = jnp.asarray(photos if blur else _smoothed(photos), jnp.float64)
+        nb = jnp.asarray(table[:, 0])
         plan = None if splat == "default" else jg.plan_render(m, c64, sigma=0.1)
         nd = jax.lax.stop_gradient(jg.render(m, c64[nb], channels=("depth", "alpha"), plan=plan))
 
         def f(v, spread=0.0):  # 0: the plain residual (the robust scale is held constant, its gradient not taken)
             mm = jg.Mesh(vertices=v, faces=m.faces, n_vertices=m.n_vertices, n_faces=m.n_faces)
             r = jg.render(mm, c64, channels=("alpha", "depth"), plan=plan)
-            return photo_consistency(r[..., 1], r[..., 0], c64, p64, c64[nb], p64[nb], nd, spread=spread)[0]
+            return photo_consistency(r[..., 1], r[..., 0], c64, p64, c64[nb], p64[nb], nd, spread=spread,
+                                     blur=blur)[0]
 
         g = jax.grad(f)(m.vertices)
         assert bool(jnp.all(jnp.isfinite(g)))

@@ -170,7 +170,10 @@ def _warp_one(depth, covered, ref_cam, ref_img, nb_cam, nb_img, nb_depth):
 
 def _blurred(img):
     """`(K, H, W, C)` blurred by the binomial kernel [1, 4, 6, 4, 1] / 16 along both axes (sigma 1 px,
-    edges clamped): sampled texture is band-limited before it is compared and interpolated."""
+    edges clamped): sampled texture is band-limited before it is compared and interpolated. Each image
+    is blurred in its own pixels, so where two views foreshorten the surface differently they see
+    different blurs of its texture, and NCC then prefers a surface that evens them out over the true
+    one: a fine texture is compared unblurred (docs/photometric.md, "No blur for a fine texture")."""
     k = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
     for axis in (1, 2):
         n = img.shape[axis]
@@ -181,10 +184,15 @@ def _blurred(img):
     return img
 
 
-def _straight_grey(photos):
-    """`(K, H, W, 2)`: the blurred grey level, divided by the blurred mask (no background bleeds in
-    at the contour), and the blurred mask."""
-    g = _blurred(jnp.stack([_grey(photos[..., :3]), photos[..., 3]], -1))
+def _straight_grey(photos, blur: float):
+    """`(K, H, W, 2)`: the grey level divided by the mask (straight, not premultiplied: no background
+    darkens the contour), and the mask; both blurred by `_blurred` in the share `blur` (1: blurred,
+    0: as given)."""
+    g = jnp.stack([_grey(photos[..., :3]), photos[..., 3]], -1)
+    if blur == 1:
+        g = _blurred(g)
+    elif blur:
+        g = g + blur * (_blurred(g) - g)
     return jnp.stack([g[..., 0] / jnp.maximum(g[..., 1], 1e-3), g[..., 1]], -1)
 
 
@@ -207,15 +215,19 @@ def _depth_steps(depth):
 
 def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W"], ref_cams: Cameras,
                         ref_photos: Float[Array, "K H W 4"], nb_cams: Cameras, nb_photos: Float[Array, "K h w 4"],
-                        nb_depth: Float[Array, "K s t 2"], *, window: int = 7) -> tuple[Array, Array]:
+                        nb_depth: Float[Array, "K s t 2"], *, window: int = 7, blur: float = 1.0
+                        ) -> tuple[Array, Array]:
     """Per window of every pair `(ncc, weight)`, `(K, Hw, Ww)` each: the NCC of the reference photo
     and the neighbour's photo warped through `depth` (module doc), and 1 where the window is
     valid (3/4 of its pixels valid and the reference std at least `MIN_STD`), else 0.
 
     `depth`, `alpha`: the rendered depth and coverage of the reference views; photos are
     premultiplied RGBA; `nb_depth`: the neighbours' rendered (depth, coverage) at any
-    resolution (held constant)."""
-    ref_grey, nb_grey = _straight_grey(ref_photos), _straight_grey(nb_photos)
+    resolution (held constant). `blur`: how much of the binomial blur (sigma 1 px, each photo in
+    its own pixels) the grey levels get, 1 all, 0 none (`LossWeights.consistency_blur`)."""
+    if not 0.0 <= blur <= 1.0:
+        raise ValueError(f"blur must be in [0, 1], got {blur!r}")
+    ref_grey, nb_grey = _straight_grey(ref_photos, blur), _straight_grey(nb_photos, blur)
     cover = jax.lax.stop_gradient(alpha)
     # away from the contours: there the depth is blended across the rim and the surface grazes the ray
     covered = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
@@ -282,12 +294,13 @@ def robust_cost(residual: Float[Array, "..."], weight: Float[Array, "..."], spre
 
 
 def photo_consistency(depth, alpha, ref_cams: Cameras, ref_photos, nb_cams: Cameras, nb_photos, nb_depth, *,
-                      window: int = 7, scales: int = 2,
-                      spread: float = ROBUST_SPREAD) -> tuple[Float[Array, ""], Float[Array, ""]]:
+                      window: int = 7, scales: int = 2, spread: float = ROBUST_SPREAD,
+                      blur: float = 1.0) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """`(loss, windows)`: the mean over the valid windows of their `robust_cost` (0 when there are
     none) and how many windows were valid (`consistency_windows` for the arguments), averaged over
     `scales` levels of a 2 x 2 pyramid of the depth, coverage and photos: the coarser levels see
-    texture twice as wide, so a surface a few pixels off still finds its way."""
+    texture twice as wide, so a surface a few pixels off still finds its way. `blur`: as in
+    `consistency_windows`."""
     losses, counts = [], []
     for level in range(scales):
         if level:
@@ -295,7 +308,7 @@ def photo_consistency(depth, alpha, ref_cams: Cameras, ref_photos, nb_cams: Came
             ref_photos, nb_photos, nb_depth = _pooled(ref_photos), _pooled(nb_photos), _pooled(nb_depth)
             ref_cams, nb_cams = scaled_cameras(ref_cams, 2), scaled_cameras(nb_cams, 2)
         ncc, weight = consistency_windows(depth, alpha, ref_cams, ref_photos, nb_cams, nb_photos, nb_depth,
-                                          window=window)
+                                          window=window, blur=blur)
         count = jnp.sum(weight)
         losses.append(jnp.sum(weight * robust_cost(1.0 - ncc, weight, spread)) / jnp.maximum(count, 1.0))
         counts.append(count)

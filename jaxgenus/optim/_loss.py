@@ -90,6 +90,13 @@ class LossWeights:
             `reconstruct` sets 6 for photos of a fine texture (`ReconstructOptions.texture_ratio`),
             where it took ray-cast 10-px colour cells from 1.33x to about 1x the silhouette-only CD;
             on smooth albedos it costs (docs/photometric.md, "Shading ratios").
+        consistency_blur: not a weight of a term: how much of a binomial blur (sigma 1 px, each
+            photo in its own pixels) the `consistency` term compares, 1 all, 0 none. The blur
+            smooths the term on smooth shading, but it biases NCC off the true surface where a
+            fine texture is foreshortened differently in two views; `reconstruct` sets 0 for
+            photos of a fine texture (`ReconstructOptions.texture_blur`; ray-cast 10-px colour
+            cells on two genus-2 shapes: CD 0.00204 -> 0.00188, 0.00161 -> 0.00149;
+            docs/photometric.md, "No blur for a fine texture").
     """
 
     alpha: float = 1.0
@@ -104,12 +111,15 @@ class LossWeights:
     stereo: float = 1.0
     albedo_edges: float = 1.0
     shading_ratio: float = 0.0
+    consistency_blur: float = 1.0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
             v = getattr(self, f.name)
             if not isinstance(v, (int, float)) or not v >= 0.0 or v == float("inf"):
                 raise ValueError(f"weights.{f.name} must be a finite Python float >= 0, got {v!r}")
+        if self.consistency_blur > 1.0:
+            raise ValueError(f"weights.consistency_blur must be in [0, 1], got {self.consistency_blur!r}")
 
 
 def render_channels(target: Float[Array, "N H W C"], photo: bool = False) -> tuple[str, ...]:
@@ -190,13 +200,13 @@ def _shading_ratio(mesh, renderer, kw, cameras, target, lighting):
     return shading_ratio_cost(img[..., 0], img[..., 1:4], target, where=near)[0]
 
 
-def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours):
+def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours, blur):
     """The photo-consistency loss of the views against their neighbours (the neighbours' depth constant)."""
     nb_cams, nb_photos = neighbours[:2]
     fixed = jax.tree.map(jax.lax.stop_gradient, mesh)
     kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
     nb_depth = jax.lax.stop_gradient(renderer(fixed, nb_cams, channels=("depth", "alpha"), **kw))
-    loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth)
+    loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth, blur=blur)
     return loss
 
 
@@ -257,7 +267,8 @@ def objective(
             terms["carve"] = weights.carve * carving_term(rendered, depth, target)
         if consistent:
             terms["consistency"] = weights.consistency * _consistency(mesh, renderer, kw, rendered[..., 0], depth,
-                                                                      cameras, target, neighbours)
+                                                                      cameras, target, neighbours,
+                                                                      weights.consistency_blur)
         if stereo:
             terms["stereo"] = weights.stereo * stereo_depth_cost(depth, rendered[..., 0], neighbours[2])
         terms.update(image_terms(rendered, target, weights, photo))
