@@ -194,8 +194,8 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
     edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets on one device, as
     a process of a split run holds only its own views): `shading_ratio` at `texture_ratio` where it is 0,
-    the silhouette weight `alpha` at `texture_alpha` and `consistency_blur` at `texture_blur` where
-    they are at their defaults. The share is measured
+    the silhouette weight `alpha` at `texture_alpha`, the photometric weight `photo` at `texture_photo`
+    and `consistency_blur` at `texture_blur` where they are at their defaults. The share is measured
     on the images the fit sees: a texture the finest level blurs away is no fine texture."""
     if kind != "photo" or views_layout(n_views, options.devices)[0] is not None:
         return options
@@ -206,6 +206,9 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     if options.texture_alpha > 0 and weights.alpha == LossWeights().alpha != options.texture_alpha:
         change["alpha"] = options.texture_alpha
         said.append(f"silhouette weight {options.texture_alpha:g} (texture_alpha=0: as set)")
+    if options.texture_photo > 0 and weights.photo == LossWeights().photo != options.texture_photo:
+        change["photo"] = options.texture_photo
+        said.append(f"photometric weight {options.texture_photo:g} (texture_photo=0: as set)")
     default_blur = LossWeights().consistency_blur
     if weights.consistency > 0 and weights.consistency_blur == default_blur != options.texture_blur:
         change["consistency_blur"] = options.texture_blur
