@@ -62,7 +62,8 @@ def _progress(say):
             eta = row["eta"] + (row["fits"] - row["fit"] - 1) * this_fit
         bar = "#" * done + "." * max(total - done, 0)
         fit = f"fit {row['fit'] + 1}/{row['fits']} " if row["fits"] > 1 else ""
-        say(f"[{bar}] {fit}cycle {row['cycle'] + 1}/{row['n_cycles']}  loss {row['loss']:.4f}  faces {row['faces']}"
+        what = "polish cycle" if row["polish"] else "cycle"
+        say(f"[{bar}] {fit}{what} {row['cycle'] + 1}/{row['n_cycles']}  loss {row['loss']:.4f}  faces {row['faces']}"
             f"  chi {row['chi']}  {sum(seconds):.0f}s in cycles, ETA {eta:.0f}s")
 
     return show
@@ -144,6 +145,8 @@ def _options(args):
         change.update(shading_ratio=args.shading_ratio, **({} if args.shading_ratio else {"texture_ratio": 0.0}))
     if getattr(args, "stereo", None) is not None:  # 0: no stereo at all (neither the start nor the term)
         change.update(stereo=args.stereo, **({} if args.stereo else {"stereo_carve": 0.0}))
+    if getattr(args, "polish_cycles", None) is not None:  # 0: none, also for fine textures
+        change.update(polish_cycles=args.polish_cycles, **({} if args.polish_cycles else {"texture_polish": 0}))
     if args.refits is not None:
         change["refits"] = args.refits
     if args.refit_carve is not None:
@@ -324,6 +327,10 @@ def _photo_arguments(r) -> None:
     r.add_argument("--stereo", type=float, metavar="W",
                    help="photo targets: weight of the plane-sweep stereo depth term (default 1; 0: no stereo, "
                         "neither the depth term nor the carving of the start)")
+    r.add_argument("--polish-cycles", type=int, metavar="N",
+                   help="photo targets with photo-consistency: closing cycles on the silhouettes and colour "
+                        "photo-consistency only, no remesh (default: 2 for photos of a fine texture, else none; "
+                        "0: none)")
 
 
 def main(argv=None) -> int:

@@ -62,5 +62,8 @@ def test_cli_settings_map_onto_the_nested_options():
     assert opts.optimize.weights.stereo == 1.0 and opts.stereo_carve == jg.ReconstructOptions().stereo_carve
     no_stereo = _options(argparse.Namespace(**{**base, "stereo": 0.0}))
     assert no_stereo.optimize.weights.stereo == 0.0 and no_stereo.stereo_carve == 0.0
+    assert (opts.polish_cycles, opts.texture_polish) == (0, 2)  # fine textures only, by default
+    assert _options(argparse.Namespace(**{**base, "polish_cycles": 3})).polish_cycles == 3
+    assert _options(argparse.Namespace(**{**base, "polish_cycles": 0})).texture_polish == 0  # none, also for textures
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000

@@ -43,12 +43,20 @@ def _smoothed(photos):
     return x
 
 
-def _loss(mesh, cams, photos, table, gain=1.0, blur=1.0):
+def _loss(mesh, cams, photos, table, gain=1.0, blur=1.0, colour=False):
     nb = jnp.asarray(table[:, 0])
     r = jg.render(mesh, cams, channels=("alpha", "depth"))
     nd = jg.render(mesh, cams[nb], channels=("depth", "alpha"))
     return photo_consistency(r[..., 1], r[..., 0], cams, photos * jnp.asarray([gain, gain, gain, 1.0]), cams[nb],
-                             photos[nb], nd, blur=blur)
+                             photos[nb], nd, blur=blur, colour=colour)
+
+
+def _isoluminant(p):
+    """Checker cells of 0.1 in red or in green of the same grey level (luma 0.299 R = 0.587 G): an
+    edge only R, G, B show."""
+    c = np.floor(np.asarray(p, np.float64) / 0.1).astype(np.int64)
+    odd = (c.sum(axis=1) % 2 == 1)[:, None]
+    return np.where(odd, [[0.8, 0.0, 0.0]], [[0.0, 0.8 * 0.299 / 0.587, 0.0]])
 
 
 def test_neighbours_are_nearby_views_not_itself(scene):
@@ -63,15 +71,16 @@ def test_neighbours_are_nearby_views_not_itself(scene):
     assert view_neighbours(lone).tolist() == [[0, 0, 0, 0]]  # no neighbour: paired with itself (no signal)
 
 
-@pytest.mark.parametrize("blur", [1.0, 0.0])
-def test_minimum_at_the_true_surface_and_exposure_invariant(scene, blur):
+@pytest.mark.parametrize("blur, colour", [(1.0, False), (0.0, False), (0.0, True)])
+def test_minimum_at_the_true_surface_and_exposure_invariant(scene, blur, colour):
     cams, photos, table = scene
-    losses = {s: float(_loss(torus(1.0, 0.35 * s, 64, 32), cams, photos, table, blur=blur)[0])
+    losses = {s: float(_loss(torus(1.0, 0.35 * s, 64, 32), cams, photos, table, blur=blur, colour=colour)[0])
               for s in (0.9, 0.97, 1.0, 1.03, 1.1)}
     assert losses[1.0] < 0.85 * min(losses[0.97], losses[1.03]) and losses[1.0] < 0.5 * min(losses[0.9], losses[1.1]), losses
-    darker, count = _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, gain=0.6, blur=blur)  # exposure changed
+    darker, count = _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, gain=0.6, blur=blur,
+                          colour=colour)  # exposure changed
     assert abs(float(darker) - losses[1.0]) < 0.02 and float(count) > 100
-    if blur == 0.0:  # half a blur lies between none and all of it
+    if blur == 0.0 and not colour:  # half a blur lies between none and all of it
         half = float(_loss(torus(1.0, 0.35, 64, 32), cams, photos, table, blur=0.5)[0])
         full = float(_loss(torus(1.0, 0.35, 64, 32), cams, photos, table)[0])
         assert min(full, losses[1.0]) < half < max(full, losses[1.0]), (full, half, losses[1.0])
@@ -79,10 +88,31 @@ def test_minimum_at_the_true_surface_and_exposure_invariant(scene, blur):
             _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, blur=1.5)
         with pytest.raises(ValueError, match="consistency_blur"):
             jg.LossWeights(consistency_blur=2.0)
+        with pytest.raises(ValueError, match="consistency_colour"):
+            jg.LossWeights(consistency_colour=0.5)
 
 
-@pytest.mark.parametrize("splat, blur", [("default", 1.0), ("jax", 1.0), ("default", 0.0)])
-def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, splat, blur):
+def test_colour_sees_an_edge_of_equal_grey():
+    """Red and green cells of one grey level: the grey term finds no texture, the colour term finds it
+    and has its minimum at the true surface."""
+    cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=96)
+    tm = torus_trimesh(1.0, 0.35, 64, 32)
+    photos = np.asarray(raycast_lambert(cams, tm, light_direction=LIGHT, ambient=1.0, albedo=_isoluminant), np.float32)
+    photos[..., :3] *= photos[..., 3:4]
+    grey = np.asarray(photos[..., :3] @ np.asarray([0.299, 0.587, 0.114], np.float32))
+    inside = photos[..., 3] > 0.99
+    assert np.std(grey[inside]) < 0.3 * np.std(photos[..., 0][inside])  # the shading alone varies the grey
+    table, photos = view_neighbours(cams), jnp.asarray(photos)
+    _, grey_windows = _loss(torus(1.0, 0.35, 64, 32), cams, photos, table, blur=0.0)
+    losses = {s: _loss(torus(1.0, 0.35 * s, 64, 32), cams, photos, table, blur=0.0, colour=True)
+              for s in (0.93, 1.0, 1.07)}
+    assert float(losses[1.0][1]) > 3 * float(grey_windows), (float(losses[1.0][1]), float(grey_windows))
+    assert float(losses[1.0][0]) < 0.7 * min(float(losses[0.93][0]), float(losses[1.07][0])), losses
+
+
+@pytest.mark.parametrize("splat, blur, colour", [("default", 1.0, False), ("jax", 1.0, False), ("default", 0.0, False),
+                                                 ("default", 0.0, True)])
+def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, splat, blur, colour):
     """Both renderer paths: the default (native kernel on CPU) and the JAX splat with one fixed plan
     (the GPU path; a plan per call would differ between the traced and the concrete evaluations).
     Unblurred (`blur` 0, as for a fine texture) on photos this test smooths itself (`_smoothed`)."""
@@ -92,7 +122,8 @@ def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, sp
     with jax.enable_x64(True):
         m = torus(1.0, 0.35 * 1.04, 32, 16, dtype=jnp.float64)
         c64 = jax.tree.map(lambda a: jnp.asarray(a, jnp.float64), cams)
-        p64 = jnp.asarray(photos if blur else _smoothed(photos), jnp.float64)
+        p64 = jnp.asarray(photos if blur else _smoothed(photos) if not colour else _smoothed(_smoothed(photos)),
+                          jnp.float64)  # each channel's cells jump more than their grey level: smoothed twice
         nb = jnp.asarray(table[:, 0])
         plan = None if splat == "default" else jg.plan_render(m, c64, sigma=0.1)
         nd = jax.lax.stop_gradient(jg.render(m, c64[nb], channels=("depth", "alpha"), plan=plan))
@@ -101,7 +132,7 @@ def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, sp
             mm = jg.Mesh(vertices=v, faces=m.faces, n_vertices=m.n_vertices, n_faces=m.n_faces)
             r = jg.render(mm, c64, channels=("alpha", "depth"), plan=plan)
             return photo_consistency(r[..., 1], r[..., 0], c64, p64, c64[nb], p64[nb], nd, spread=spread,
-                                     blur=blur)[0]
+                                     blur=blur, colour=colour)[0]
 
         g = jax.grad(f)(m.vertices)
         assert bool(jnp.all(jnp.isfinite(g)))
@@ -188,14 +219,27 @@ def test_reconstruct_with_photo_consistency_reports_residuals(scene):
     cams, photos, _ = scene
     straight = np.asarray(photos).copy()
     straight[..., :3] = np.where(straight[..., 3:] > 0, straight[..., :3] / np.maximum(straight[..., 3:], 1e-6), 0.0)
-    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=15, consistency=1.0)
-    rec = jg.reconstruct(straight, cams, 1, targets="photo", options=opts, key=jax.random.key(0))
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=15, consistency=1.0, polish_cycles=2)
+    rows = []
+    rec = jg.reconstruct(straight, cams, 1, targets="photo", options=opts, key=jax.random.key(0),
+                         callback=lambda row, mesh: rows.append(row))
     res = np.asarray(rec.history["photo_consistency"], np.float64)
     assert res.shape == (24,) and np.any(np.isfinite(res)) and np.all(res[np.isfinite(res)] <= 1.0)
     assert np.any(np.asarray(rec.history["consistency"]) > 0)
+    # two polish cycles close the fit (set here; by default for fine textures): no remesh, silhouettes and
+    # photo-consistency only
+    cycles = rec.history["cycles"]
+    assert [c.polish for c in cycles] == [False, False, True, True] and rows == list(cycles)
+    assert all(c.n_cycles == 4 and c.remesh_status is None and c.faces == cycles[1].faces for c in cycles[2:])
+    polish = slice(30, 60)
+    assert len(rec.history["loss"]) == 60 and np.all(np.isfinite(rec.history["loss"]))
+    terms = {k: np.asarray(rec.history[k])[polish] for k in ("photo", "consistency")}
+    assert np.all(terms["photo"] == 0) and np.any(terms["consistency"] > 0)
+    assert rec.genus == 1 and rec.history["ok"], rec.history["warnings"]
     off = jg.reconstruct(straight, cams, 1, targets="photo", options=opts.updated(consistency=0.0),
                          key=jax.random.key(0))
     assert off.history["photo_consistency"] is None and np.all(np.asarray(off.history["consistency"]) == 0)
+    assert len(off.history["cycles"]) == 2 and len(off.history["loss"]) == 30  # no polish without the term
 
 
 def test_occluding_contours_inside_the_silhouette_are_left_out():

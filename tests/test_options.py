@@ -65,6 +65,8 @@ def test_photos_that_resolve_more_detail_get_a_larger_face_budget():
     assert detail_budget(nic, "photo", 24, hull, pixel_for(100_000)) == (nic.initial_faces, 0)  # no remeshing
     with pytest.raises(ValueError, match="detail_faces"):
         jg.ReconstructOptions(detail_faces=-1)
+    with pytest.raises(ValueError, match="polish_cycles"):
+        jg.ReconstructOptions(polish_cycles=-1)
 
 
 def test_a_photo_capture_that_resolves_more_gets_the_budget_from_its_visual_hull():

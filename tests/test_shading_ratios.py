@@ -136,36 +136,42 @@ def test_fine_textures_turn_the_term_on(scene):
         jg.ReconstructOptions(texture_blur=1.5)
     with pytest.raises(ValueError, match="texture_photo"):
         jg.ReconstructOptions(texture_photo=-1.0)
+    with pytest.raises(ValueError, match="texture_polish"):
+        jg.ReconstructOptions(texture_polish=-1)
 
 
 def test_fine_textures_weigh_the_silhouettes_more(scene):
     """For photos of a fine texture the fit raises the silhouette weight to `texture_alpha`, lowers the
-    photometric weight to `texture_photo`, turns shading ratios on and compares them unblurred
-    (`texture_blur`), each only where the caller left it at its default; smooth photos keep all, and
-    so do cells the finest level fitted blurs (the share is measured on the images the fit sees)."""
+    photometric weight to `texture_photo`, turns shading ratios on, compares them unblurred
+    (`texture_blur`) and closes with `texture_polish` polish cycles, each only where the caller left it
+    at its default; smooth photos keep all, and so do cells the finest level fitted blurs (the share is
+    measured on the images the fit sees)."""
     from jaxgenus.optim import pyramid_level
     from jaxgenus.pipeline._setup import FINE_TEXTURE, fine_texture, texture_share
 
     cams, photos, _ = scene
-    base = jg.ReconstructOptions()
+    base, polish = jg.ReconstructOptions(), []
 
     def weights(name, options, factor=1):
         lines, level = [], photos[name] if isinstance(name, str) else name
         level = level if factor == 1 else pyramid_level(level, factor)
-        w = fine_texture(options, "photo", level, len(cams), lines.append).optimize.weights
+        fitted = fine_texture(options, "photo", level, len(cams), lines.append)
+        w = fitted.optimize.weights
+        polish.append(fitted.polish_cycles)
         return w.alpha, w.shading_ratio, w.consistency_blur, w.photo, lines
 
     alpha, ratio, blur, photo, said = weights("cells", base)
     assert (alpha, ratio, blur, photo) == (base.texture_alpha, base.texture_ratio, base.texture_blur,
                                            base.texture_photo) == (4.0, 6.0, 0.0, 1.0)
     assert len(said) == 1 and all(s in said[0] for s in ("silhouette weight 4", "shading ratios on", "blur 0",
-                                                         "photometric weight 1")), said
-    kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0)
-    assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, [])  # the caller's kept
-    off = base.updated(texture_alpha=0.0, texture_ratio=0.0, texture_blur=1.0, texture_photo=0.0)
-    assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, [])
-    assert weights("cells", base.updated(consistency=0.0))[2] == 1.0  # no term, nothing to unblur
-    assert weights("constant", base) == (1.0, 0.0, 1.0, 6.0, [])
+                                                         "photometric weight 1", "2 closing polish")), said
+    assert polish[-1] == base.texture_polish == 2 and base.polish_cycles == 0
+    kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1)
+    assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1  # the caller's kept
+    off = base.updated(texture_alpha=0.0, texture_ratio=0.0, texture_blur=1.0, texture_photo=0.0, texture_polish=0)
+    assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0
+    assert weights("cells", base.updated(consistency=0.0))[2] == 1.0 and polish[-1] == 0  # no term: no polish
+    assert weights("constant", base) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0
     # the same cells at 4x the size (44 px): few pixels on an edge; fitted at 1/4 they are fine again
     big = jnp.repeat(jnp.repeat(photos["cells"], 4, axis=1), 4, axis=2)
     assert texture_share(big) < 0.5 * FINE_TEXTURE

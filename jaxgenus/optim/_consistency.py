@@ -141,8 +141,8 @@ def _bilinear(img, u, v):
 
 
 def _warp_one(depth, covered, ref_cam, ref_img, nb_cam, nb_img, nb_depth):
-    """One pair: the reference grey image, the neighbour's grey image warped onto the reference
-    pixels through `depth`, and where that warp is valid."""
+    """One pair: the reference image's channels `(H, W, C)`, the neighbour's warped onto the reference
+    pixels through `depth`, and where that warp is valid (the images' last channel is the mask)."""
     h, w = depth.shape
     rot, t, f, pp = ref_cam
     v, u = jnp.meshgrid(jnp.arange(h, dtype=depth.dtype) + 0.5, jnp.arange(w, dtype=depth.dtype) + 0.5, indexing="ij")
@@ -157,15 +157,15 @@ def _warp_one(depth, covered, ref_cam, ref_img, nb_cam, nb_img, nb_depth):
     vn = nf[1] * y[..., 1] / safe_z + npp[1]
     hn, wn = nb_img.shape[:2]
     inside = (z > 1e-6) & (un >= 0.5) & (un <= wn - 0.5) & (vn >= 0.5) & (vn <= hn - 0.5)
-    sample = _bilinear(nb_img, un, vn)  # grey, mask
+    sample = _bilinear(nb_img, un, vn)  # channels, mask
     # visibility: the neighbour's own (constant) depth render, at its resolution
     sd, sv = nb_depth.shape[:2]
     scale_u, scale_v = sv / wn, sd / hn
     dn = _bilinear(nb_depth, jax.lax.stop_gradient(un) * scale_u, jax.lax.stop_gradient(vn) * scale_v)
     zc = jax.lax.stop_gradient(z)
     visible = (dn[..., 1] >= _COVER) & (zc <= dn[..., 0] / jnp.maximum(dn[..., 1], 1e-6) * (1.0 + _OCCLUSION))
-    valid = covered & inside & visible & (sample[..., 1] >= 0.9) & (ref_img[..., 1] >= 0.9)
-    return ref_img[..., 0], sample[..., 0], valid
+    valid = covered & inside & visible & (sample[..., -1] >= 0.9) & (ref_img[..., -1] >= 0.9)
+    return ref_img[..., :-1], sample[..., :-1], valid
 
 
 def _blurred(img):
@@ -184,16 +184,16 @@ def _blurred(img):
     return img
 
 
-def _straight_grey(photos, blur: float):
-    """`(K, H, W, 2)`: the grey level divided by the mask (straight, not premultiplied: no background
-    darkens the contour), and the mask; both blurred by `_blurred` in the share `blur` (1: blurred,
-    0: as given)."""
-    g = jnp.stack([_grey(photos[..., :3]), photos[..., 3]], -1)
+def _straight(photos, blur: float, colour: bool):
+    """`(K, H, W, C + 1)`: the grey level (C = 1) or R, G, B (`colour`, C = 3) divided by the mask
+    (straight, not premultiplied: no background darkens the contour), and the mask; all blurred by
+    `_blurred` in the share `blur` (1: blurred, 0: as given)."""
+    g = photos if colour else jnp.stack([_grey(photos[..., :3]), photos[..., 3]], -1)
     if blur == 1:
         g = _blurred(g)
     elif blur:
         g = g + blur * (_blurred(g) - g)
-    return jnp.stack([g[..., 0] / jnp.maximum(g[..., 1], 1e-3), g[..., 1]], -1)
+    return jnp.concatenate([g[..., :-1] / jnp.maximum(g[..., -1:], 1e-3), g[..., -1:]], -1)
 
 
 def _window_sums(x, window: int, stride: int):
@@ -215,8 +215,8 @@ def _depth_steps(depth):
 
 def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W"], ref_cams: Cameras,
                         ref_photos: Float[Array, "K H W 4"], nb_cams: Cameras, nb_photos: Float[Array, "K h w 4"],
-                        nb_depth: Float[Array, "K s t 2"], *, window: int = 7, blur: float = 1.0
-                        ) -> tuple[Array, Array]:
+                        nb_depth: Float[Array, "K s t 2"], *, window: int = 7, blur: float = 1.0,
+                        colour: bool = False) -> tuple[Array, Array]:
     """Per window of every pair `(ncc, weight)`, `(K, Hw, Ww)` each: the NCC of the reference photo
     and the neighbour's photo warped through `depth` (module doc), and 1 where the window is
     valid (3/4 of its pixels valid and the reference std at least `MIN_STD`), else 0.
@@ -224,26 +224,33 @@ def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W
     `depth`, `alpha`: the rendered depth and coverage of the reference views; photos are
     premultiplied RGBA; `nb_depth`: the neighbours' rendered (depth, coverage) at any
     resolution (held constant). `blur`: how much of the binomial blur (sigma 1 px, each photo in
-    its own pixels) the grey levels get, 1 all, 0 none (`LossWeights.consistency_blur`)."""
+    its own pixels) the images get, 1 all, 0 none (`LossWeights.consistency_blur`). `colour`: NCC
+    of R, G and B together (each channel's covariance and variances, averaged over the channels,
+    make one NCC per window: a colour edge of equal grey still counts) instead of the grey level
+    (`LossWeights.consistency_colour`)."""
     if not 0.0 <= blur <= 1.0:
         raise ValueError(f"blur must be in [0, 1], got {blur!r}")
-    ref_grey, nb_grey = _straight_grey(ref_photos, blur), _straight_grey(nb_photos, blur)
+    ref_img, nb_img = _straight(ref_photos, blur, colour), _straight(nb_photos, blur, colour)
     cover = jax.lax.stop_gradient(alpha)
     # away from the contours: there the depth is blended across the rim and the surface grazes the ray
     covered = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
     depth = depth / jnp.maximum(cover, _COVER)  # the render composites depth over 0 with its coverage
     covered = covered & ~_depth_steps(jax.lax.stop_gradient(depth))
     cam = lambda c: (c.rotation, c.translation, c.focal, c.principal_point)
-    a, b, valid = jax.vmap(_warp_one)(depth, covered, cam(ref_cams), ref_grey, cam(nb_cams), nb_grey, nb_depth)
+    a, b, valid = jax.vmap(_warp_one)(depth, covered, cam(ref_cams), ref_img, cam(nb_cams), nb_img, nb_depth)
     m = valid.astype(depth.dtype)
-    a, b = jnp.where(valid, a, 0.0), jnp.where(valid, b, 0.0)
+    a, b = jnp.where(valid[..., None], a, 0.0), jnp.where(valid[..., None], b, 0.0)
     stride = max(window // 2, 1)
-    sums = [_window_sums(q, window, stride) for q in (m, m * a, m * b, m * a * a, m * b * b, m * a * b)]
-    n, sa, sb, saa, sbb, sab = sums
+    n = _window_sums(m, window, stride)
     nn = jnp.maximum(n, 1.0)
-    var_a = jnp.maximum(saa / nn - (sa / nn) ** 2, 0.0)
-    var_b = jnp.maximum(sbb / nn - (sb / nn) ** 2, 0.0)
-    cov = sab / nn - sa * sb / (nn * nn)
+    channels = a.shape[-1]
+    var_a = var_b = cov = 0.0
+    for ch in range(channels):
+        x, y = a[..., ch], b[..., ch]
+        sa, sb, saa, sbb, sab = [_window_sums(m * q, window, stride) for q in (x, y, x * x, y * y, x * y)]
+        var_a = var_a + jnp.maximum(saa / nn - (sa / nn) ** 2, 0.0) / channels
+        var_b = var_b + jnp.maximum(sbb / nn - (sb / nn) ** 2, 0.0) / channels
+        cov = cov + (sab / nn - sa * sb / (nn * nn)) / channels
     eps = (0.1 * MIN_STD) ** 2
     ncc = cov / jnp.sqrt((var_a + eps) * (var_b + eps))
     # textured on both sides (a flat warped window gives no usable gradient, only noise)
@@ -295,11 +302,11 @@ def robust_cost(residual: Float[Array, "..."], weight: Float[Array, "..."], spre
 
 def photo_consistency(depth, alpha, ref_cams: Cameras, ref_photos, nb_cams: Cameras, nb_photos, nb_depth, *,
                       window: int = 7, scales: int = 2, spread: float = ROBUST_SPREAD,
-                      blur: float = 1.0) -> tuple[Float[Array, ""], Float[Array, ""]]:
+                      blur: float = 1.0, colour: bool = False) -> tuple[Float[Array, ""], Float[Array, ""]]:
     """`(loss, windows)`: the mean over the valid windows of their `robust_cost` (0 when there are
     none) and how many windows were valid (`consistency_windows` for the arguments), averaged over
     `scales` levels of a 2 x 2 pyramid of the depth, coverage and photos: the coarser levels see
-    texture twice as wide, so a surface a few pixels off still finds its way. `blur`: as in
+    texture twice as wide, so a surface a few pixels off still finds its way. `blur`, `colour`: as in
     `consistency_windows`."""
     losses, counts = [], []
     for level in range(scales):
@@ -308,7 +315,7 @@ def photo_consistency(depth, alpha, ref_cams: Cameras, ref_photos, nb_cams: Came
             ref_photos, nb_photos, nb_depth = _pooled(ref_photos), _pooled(nb_photos), _pooled(nb_depth)
             ref_cams, nb_cams = scaled_cameras(ref_cams, 2), scaled_cameras(nb_cams, 2)
         ncc, weight = consistency_windows(depth, alpha, ref_cams, ref_photos, nb_cams, nb_photos, nb_depth,
-                                          window=window, blur=blur)
+                                          window=window, blur=blur, colour=colour)
         count = jnp.sum(weight)
         losses.append(jnp.sum(weight * robust_cost(1.0 - ncc, weight, spread)) / jnp.maximum(count, 1.0))
         counts.append(count)

@@ -97,6 +97,9 @@ class LossWeights:
             photos of a fine texture (`ReconstructOptions.texture_blur`; ray-cast 10-px colour
             cells on two genus-2 shapes: CD 0.00204 -> 0.00188, 0.00161 -> 0.00149;
             docs/photometric.md, "No blur for a fine texture").
+        consistency_colour: not a weight of a term: 1 compares R, G and B in the `consistency` term
+            (one NCC per window from the three channels' covariances and variances), 0 (default) the
+            grey level. `reconstruct`'s closing polish uses 1 (`ReconstructOptions.polish_steps`).
     """
 
     alpha: float = 1.0
@@ -112,6 +115,7 @@ class LossWeights:
     albedo_edges: float = 1.0
     shading_ratio: float = 0.0
     consistency_blur: float = 1.0
+    consistency_colour: float = 0.0
 
     def __post_init__(self):
         for f in dataclasses.fields(self):
@@ -120,6 +124,8 @@ class LossWeights:
                 raise ValueError(f"weights.{f.name} must be a finite Python float >= 0, got {v!r}")
         if self.consistency_blur > 1.0:
             raise ValueError(f"weights.consistency_blur must be in [0, 1], got {self.consistency_blur!r}")
+        if self.consistency_colour not in (0, 1):
+            raise ValueError(f"weights.consistency_colour must be 0 (grey) or 1 (RGB), got {self.consistency_colour!r}")
 
 
 def render_channels(target: Float[Array, "N H W C"], photo: bool = False) -> tuple[str, ...]:
@@ -200,13 +206,14 @@ def _shading_ratio(mesh, renderer, kw, cameras, target, lighting):
     return shading_ratio_cost(img[..., 0], img[..., 1:4], target, where=near)[0]
 
 
-def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours, blur):
+def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours, blur, colour):
     """The photo-consistency loss of the views against their neighbours (the neighbours' depth constant)."""
     nb_cams, nb_photos = neighbours[:2]
     fixed = jax.tree.map(jax.lax.stop_gradient, mesh)
     kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
     nb_depth = jax.lax.stop_gradient(renderer(fixed, nb_cams, channels=("depth", "alpha"), **kw))
-    loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth, blur=blur)
+    loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth, blur=blur,
+                                colour=bool(colour))
     return loss
 
 
@@ -268,7 +275,8 @@ def objective(
         if consistent:
             terms["consistency"] = weights.consistency * _consistency(mesh, renderer, kw, rendered[..., 0], depth,
                                                                       cameras, target, neighbours,
-                                                                      weights.consistency_blur)
+                                                                      weights.consistency_blur,
+                                                                      weights.consistency_colour)
         if stereo:
             terms["stereo"] = weights.stereo * stereo_depth_cost(depth, rendered[..., 0], neighbours[2])
         terms.update(image_terms(rendered, target, weights, photo))

@@ -14,6 +14,10 @@ remesh time the two parts in both drivers.
 * `run_one_jit`: every cycle in one compiled `lax.scan` of the same `cycle`
   (`ReconstructOptions.one_jit`).
 
+`run_polish` then runs the closing polish of photo targets fitted with photo-consistency
+(`ReconstructOptions.polish_cycles`): more cycles of the finest level without remeshing, on
+the silhouettes and colour photo-consistency only.
+
 On CPU the renderer's native kernel needs no plan. Elsewhere the JAX splat is
 re-planned from the geometry every cycle (plans rounded to buckets so nearby
 meshes share one compiled cycle), or, in one jit, planned once for the final
@@ -37,12 +41,12 @@ from jax.experimental import io_callback
 
 from jaxgenus.geometry import Cameras, RemeshOptions, RemeshStatus, euler_characteristic, remesh_in_jit
 from jaxgenus.optim import (Appearance, OptimizeOptions, OptimizerState, StepRecord, count_compilations,
-                            optimize_steps)
+                            init_optimizer_state, optimize_steps)
 from jaxgenus.pipeline._history import CycleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import RasterPlan, plan_render, render
 
-__all__ = ["CycleOutput", "CycleRun", "Level", "cycle", "run_one_jit", "run_per_cycle"]
+__all__ = ["CycleOutput", "CycleRun", "Level", "cycle", "polish_count", "run_one_jit", "run_per_cycle", "run_polish"]
 
 _WRAP = 1 << 31  # the host clock is read in microseconds modulo 2^31 (int32): it wraps every 36 min
 
@@ -312,3 +316,55 @@ def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructO
             callback(cycles[c], jax.tree.map(lambda a: jnp.asarray(a[c]), out.mesh))
         waited = time.perf_counter() - tb
     return CycleRun(state, _joined(steps), tuple(cycles), 1, {"cycle": 0, "all_cycles": counts["_all_cycles"]}, waited)
+
+
+def polish_count(options: ReconstructOptions, level: Level) -> int:
+    """The polish cycles a fit whose finest level is `level` runs: `options.polish_cycles` when it
+    fits photos with photo-consistency (neighbours given: one device), else 0."""
+    return options.polish_cycles if level.neighbours is not None and options.optimize.weights.consistency > 0 else 0
+
+
+def _polish_options(options: ReconstructOptions, level: Level, alpha: float, plan) -> OptimizeOptions:
+    """The polish's optimizer settings: the silhouettes at `alpha` and colour photo-consistency, unblurred,
+    only (no shading, albedo, stereo or ratio terms), iterates averaged over about the last 20 steps."""
+    weights = dataclasses.replace(options.optimize.weights, alpha=alpha, photo=0.0, albedo_smoothness=0.0, stereo=0.0,
+                                  shading_ratio=0.0, carve=0.0, containment=0.0, consistency_blur=0.0,
+                                  consistency_colour=1.0)
+    return dataclasses.replace(_optimize_options(options, plan, level), weights=weights, average=0.95)
+
+
+def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: float, alpha: float,
+               callback: Callable | None, estimate: Callable | None = None) -> CycleRun:
+    """`run` followed by `polish_count` polish cycles of `level` (module doc; the step size of the last
+    cycle, fresh Adam moments, the connectivity kept; `alpha`: the silhouette weight), their rows
+    (`polish` True) and steps appended to `run`'s. The other arguments as in `run_per_cycle`."""
+    n = polish_count(options, level)
+    if n == 0:
+        return run
+    app = run.state.appearance
+    state = init_optimizer_state(run.state.mesh, run.state.key, albedo=app.albedo, lighting=app.lighting)
+    plan = _cycle_plan(state.mesh, level.cameras, options)  # the connectivity stays: one plan
+    opt, steps = _polish_options(options, level, alpha, plan), options.steps_per_cycle
+    lr = jnp.float32(options.lr_decay ** (options.n_cycles - 1))
+    cycles, compiled, waited = list(run.cycles), dict(run.compilations), run.callback_seconds
+    all_steps = [run.steps]
+    for k in range(n):
+        tc = time.perf_counter()
+        with count_compilations() as counts:
+            state, out = _cycle_jit(state, level.cameras, level.targets, level.outside, level.valid, level.neighbours,
+                                    lr, jnp.float32(0.0), n_steps=steps, opt=opt, remesh_options=None)
+            out = jax.device_get(out)
+        now = time.perf_counter()
+        all_steps.append(_host_steps(out.record, steps, now - t0 - waited))
+        row = _row(options.n_cycles + k, out, remeshed=False, loss=all_steps[-1]["loss"][-1],
+                   compilations=counts["cycle"], seconds=now - tc, elapsed=now - t0 - waited)
+        row = dataclasses.replace(row, polish=True)
+        compiled["cycle"] = compiled.get("cycle", 0) + counts["cycle"]
+        if estimate is not None:
+            row = dataclasses.replace(row, eta=float(estimate(cycles + [row])))
+        cycles.append(row)
+        if callback is not None:
+            tb = time.perf_counter()
+            callback(row, jax.tree.map(jnp.asarray, out.mesh))
+            waited += time.perf_counter() - tb
+    return CycleRun(state, _joined(all_steps), tuple(cycles), run.plans + 1, compiled, waited)

@@ -16,7 +16,7 @@ import numpy as np
 
 from jaxgenus.geometry import Mesh, genus as mesh_genus, is_closed_manifold
 from jaxgenus.optim import init_optimizer_state, place, pyramid_level
-from jaxgenus.pipeline._cycles import CycleRun, Level, run_one_jit, run_per_cycle
+from jaxgenus.pipeline._cycles import CycleRun, Level, polish_count, run_one_jit, run_per_cycle, run_polish
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._schedule import CostModel, levels as fit_levels, schedule_line, world_lengths
@@ -87,7 +87,7 @@ def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
 def _history(setup: Setup, start: Start, options: ReconstructOptions, run: CycleRun, verdict: Verdict,
              levels: list[Level], seconds: float, index: FitIndex) -> History:
     app = run.state.appearance
-    where = dict(n_cycles=options.n_cycles, fit=index.fit, fits=index.fits)
+    where = dict(n_cycles=len(run.cycles), fit=index.fit, fits=index.fits)
     return History(
         steps=run.steps, cycles=tuple(dataclasses.replace(c, **where) for c in run.cycles), seconds=seconds,
         requested_genus=setup.genus, start=start.kind, tunnels=start.tunnels, hull_grid=start.hull_grid,
@@ -110,9 +110,11 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
     levels = fit_levels(setup, options, start.mesh)
+    alpha = options.optimize.weights.alpha  # the polish's silhouette weight: as set, not as a fine texture sets it
     options = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say)
     lengths = world_lengths(setup, options, levels)
-    where = dict(n_cycles=options.n_cycles, fit=index.fit, fits=index.fits)
+    polish = polish_count(options, levels[-1])
+    where = dict(n_cycles=options.n_cycles + polish, fit=index.fit, fits=index.fits)
     frame = setup.frame
     user_callback = None if callback is None else (
         lambda row, m: callback(dataclasses.replace(row, **where), frame.mesh_to_world(m)))
@@ -122,11 +124,15 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     state = _initial_state(start, setup, options, key, levels[0].factor)
     if levels[0].valid is not None:  # views split over devices: the state is replicated on them
         state = place(state, levels[0].valid.sharding.mesh, split=False)
+    remaining = None if options.one_jit else CostModel.of(setup, options, levels, lengths, polish).remaining
     if options.one_jit:
         run = run_one_jit(state, levels, lengths, options, t0, user_callback)
     else:
-        run = run_per_cycle(state, levels, lengths, options, t0, user_callback,
-                            CostModel.of(setup, options, levels, lengths).remaining)
+        run = run_per_cycle(state, levels, lengths, options, t0, user_callback, remaining)
+    if polish:
+        say(f"polish: {polish} cycles of {options.steps_per_cycle} steps on the silhouettes and colour "
+            "photo-consistency only (polish_cycles=0 / --polish-cycles 0: none)")
+        run = run_polish(run, levels[-1], options, t0, alpha, user_callback, remaining)
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)

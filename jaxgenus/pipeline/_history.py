@@ -127,10 +127,12 @@ class CycleRecord(_Readable):
             is compiling, the remesh and transfers).
         eta: the seconds this fit was estimated to need after the cycle (its later cycles, from
             the pixels each renders per step, and its verdict); None where not estimated.
-        n_cycles: cycles of this fit (`options.fine()` has more).
+        n_cycles: cycles of this fit, its polish cycles included (`options.fine()` has more).
         fit, fits: this cycle's fit (0: the first; k: the k-th refit) and the fits the run
             plans (`1 + ReconstructOptions.refit_count`; a refit that fits its images
             worse than its start, or a default one that gains little, ends the run early).
+        polish: a closing polish cycle (`ReconstructOptions.polish_cycles`: silhouettes and colour
+            photo-consistency only, no remesh), after the fit's `options.n_cycles` cycles.
     """
 
     cycle: int
@@ -149,6 +151,7 @@ class CycleRecord(_Readable):
     n_cycles: int = 0
     fit: int = 0
     fits: int = 1
+    polish: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -156,11 +159,11 @@ class History(_Readable):
     """What a `reconstruct` run did.
 
     Attributes:
-        steps: per-step `(n_cycles * steps_per_cycle,)` arrays: every key of
+        steps: per-step `(cycles * steps_per_cycle,)` arrays (polish cycles included): every key of
             `RECORD_KEYS` (loss, alpha, normal, ..., status) and `time` (seconds
             since the start at each cycle's last step, NaN elsewhere).
             `history["loss"]` reads `history.steps["loss"]`.
-        cycles: one `CycleRecord` per cycle.
+        cycles: one `CycleRecord` per cycle (the polish cycles last).
         seconds: wall time of the run (callbacks excluded).
         requested_genus: the genus asked for.
         start: where the start mesh came from (`Start.kind`).

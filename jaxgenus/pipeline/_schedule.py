@@ -157,12 +157,15 @@ class CostModel:
     verdict_pixels: int
 
     @staticmethod
-    def of(setup: Setup, options: ReconstructOptions, fitted: list[Level], lengths: list[float]) -> CostModel:
+    def of(setup: Setup, options: ReconstructOptions, fitted: list[Level], lengths: list[float],
+           polish: int = 0) -> CostModel:
+        """The model of a fit of the levels `fitted`, remeshing to `lengths`, then `polish` polish cycles
+        of the last level (`run_polish`)."""
         renders = 2 + (setup.targets.kind == "photo")  # the result's and the start's silhouettes, its colours
         n, h, w = len(setup.held_cams()), setup.cams.height, setup.cams.width
-        return CostModel(tuple(lv.pixels for lv in fitted), tuple(bool(x > 0 and options.remesh is not None)
-                                                                   for x in lengths),
-                         options.steps_per_cycle, renders * n * h * w)
+        remeshes = tuple(bool(x > 0 and options.remesh is not None) for x in lengths)
+        return CostModel(tuple(lv.pixels for lv in fitted) + (fitted[-1].pixels,) * polish,
+                         remeshes + (False,) * polish, options.steps_per_cycle, renders * n * h * w)
 
     def step_costs(self, done: list[CycleRecord]) -> tuple[float, float]:
         """`(a, b)`: seconds per step and per rendered pixel per step, fitted to the cycles done (a
