@@ -230,6 +230,19 @@ def _joined(steps: list[dict]) -> dict:
     return {k: np.concatenate([s[k] for s in steps]) for k in steps[0]}
 
 
+def _reported(row: CycleRecord, mesh, cycles: list, estimate: Callable | None, callback: Callable | None) -> float:
+    """Append `row` to `cycles` (with its `eta` from `estimate(rows)` when given) and pass it to
+    `callback(row, mesh)`; the seconds spent in the callback."""
+    if estimate is not None:
+        row = dataclasses.replace(row, eta=float(estimate(cycles + [row])))
+    cycles.append(row)
+    if callback is None:
+        return 0.0
+    tb = time.perf_counter()
+    callback(row, jax.tree.map(jnp.asarray, mesh))
+    return time.perf_counter() - tb
+
+
 def run_per_cycle(state, levels: list[Level], world_lengths, options: ReconstructOptions, t0: float,
                   callback: Callable | None, estimate: Callable | None = None) -> CycleRun:
     """One compiled cycle per cycle: cycle c fits `levels[c]` and remeshes to `world_lengths[c]`
@@ -255,13 +268,7 @@ def run_per_cycle(state, levels: list[Level], world_lengths, options: Reconstruc
         row = _row(c, out, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1], compilations=counts["cycle"],
                    seconds=now - tc, elapsed=now - t0 - waited)
         compiled += counts["cycle"]
-        if estimate is not None:
-            row = dataclasses.replace(row, eta=float(estimate(cycles + [row])))
-        cycles.append(row)
-        if callback is not None:
-            tb = time.perf_counter()
-            callback(row, jax.tree.map(jnp.asarray, out.mesh))
-            waited += time.perf_counter() - tb
+        waited += _reported(row, out.mesh, cycles, estimate, callback)
     return CycleRun(state, _joined(steps), tuple(cycles), len(plans), {"cycle": compiled, "all_cycles": 0}, waited)
 
 
@@ -356,15 +363,9 @@ def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: flo
             out = jax.device_get(out)
         now = time.perf_counter()
         all_steps.append(_host_steps(out.record, steps, now - t0 - waited))
-        row = _row(options.n_cycles + k, out, remeshed=False, loss=all_steps[-1]["loss"][-1],
-                   compilations=counts["cycle"], seconds=now - tc, elapsed=now - t0 - waited)
-        row = dataclasses.replace(row, polish=True)
+        row = dataclasses.replace(_row(options.n_cycles + k, out, remeshed=False, loss=all_steps[-1]["loss"][-1],
+                                       compilations=counts["cycle"], seconds=now - tc, elapsed=now - t0 - waited),
+                                  polish=True)
         compiled["cycle"] = compiled.get("cycle", 0) + counts["cycle"]
-        if estimate is not None:
-            row = dataclasses.replace(row, eta=float(estimate(cycles + [row])))
-        cycles.append(row)
-        if callback is not None:
-            tb = time.perf_counter()
-            callback(row, jax.tree.map(jnp.asarray, out.mesh))
-            waited += time.perf_counter() - tb
+        waited += _reported(row, out.mesh, cycles, estimate, callback)
     return CycleRun(state, _joined(all_steps), tuple(cycles), run.plans + 1, compiled, waited)
