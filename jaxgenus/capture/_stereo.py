@@ -28,6 +28,8 @@ import numpy as np
 from jaxgenus.capture._hull import HullOccupancy
 from jaxgenus.geometry import Cameras
 
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+
 __all__ = ["StereoDepths", "carved_occupancy", "consistent_depths", "stereo_depths"]
 
 #: A pixel's depth is kept when the mean NCC of its best two neighbours peaks at least this high.
@@ -89,7 +91,7 @@ def _sweep(ref, ref_mask, nbs, nb_masks, rays, to_nb, inv_depths, r_win=3):
 
     def plane(inv_d):
         x = jnp.concatenate([rays / inv_d, jnp.ones_like(rays[..., :1])], -1)  # (H, W, 4)
-        p = jnp.einsum("kij,hwj->khwi", to_nb, x)
+        p = jnp.einsum("kij,hwj->khwi", to_nb, x, precision=_HI)
         z = p[..., 2]
         front = z > 1e-9
         u, v = p[..., 0] / jnp.where(front, z, 1.0), p[..., 1] / jnp.where(front, z, 1.0)

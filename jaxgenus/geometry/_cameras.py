@@ -23,6 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+
 __all__ = [
     "Cameras",
     "look_at",
@@ -77,7 +79,7 @@ class Cameras(eqx.Module):
     @property
     def centers(self) -> Array:
         """`(N, 3)` camera centres in world coordinates, `-R^T t`."""
-        return -jnp.einsum("nji,nj->ni", self.rotation, self.translation)
+        return -jnp.einsum("nji,nj->ni", self.rotation, self.translation, precision=_HI)
 
     def __getitem__(self, index) -> "Cameras":
         """Select cameras by an integer array, slice or int (keeps the batch axis)."""
@@ -156,7 +158,7 @@ def look_at(eye, target=(0.0, 0.0, 0.0), up=(0.0, 1.0, 0.0), *, fov_deg=40.0, re
     x = jnp.where(bad, x2 / xn2, x / jnp.where(bad, 1.0, xn))
     y = jnp.cross(z, x)
     rot = jnp.stack([x, y, z], axis=1)
-    trans = -jnp.einsum("nij,nj->ni", rot, eye)
+    trans = -jnp.einsum("nij,nj->ni", rot, eye, precision=_HI)
     f = _focal_from_fov(fov_deg, h)
     focal = jnp.full((n, 2), f, rot.dtype)
     pp = jnp.broadcast_to(jnp.array([w / 2.0, h / 2.0], rot.dtype), (n, 2))
@@ -193,7 +195,7 @@ def project(cameras: Cameras, points: Float[Array, "P 3"], *, return_depth: bool
     points = jnp.asarray(points)
     if points.ndim != 2 or points.shape[-1] != 3:
         raise ValueError(f"points must have shape (P, 3), got {points.shape}")
-    xc = jnp.einsum("nij,pj->npi", cameras.rotation, points) + cameras.translation[:, None, :]
+    xc = jnp.einsum("nij,pj->npi", cameras.rotation, points, precision=_HI) + cameras.translation[:, None, :]
     z = xc[..., 2]
     tiny = jnp.finfo(xc.dtype).tiny ** 0.5
     zs = jnp.where(z > tiny, z, tiny)
@@ -230,8 +232,8 @@ def cameras_from_opengl(view, fov_y_deg, *, height: int, width: int) -> Cameras:
     """
     view = _as_batch(view, (4, 4), "view")
     flip = jnp.asarray(_GL_TO_CV, view.dtype)
-    rot = jnp.einsum("ij,njk->nik", flip, view[:, :3, :3])
-    trans = jnp.einsum("ij,nj->ni", flip, view[:, :3, 3])
+    rot = jnp.einsum("ij,njk->nik", flip, view[:, :3, :3], precision=_HI)
+    trans = jnp.einsum("ij,nj->ni", flip, view[:, :3, 3], precision=_HI)
     f = _focal_from_fov(fov_y_deg, height)
     n = view.shape[0]
     focal = jnp.full((n, 2), f, view.dtype)
@@ -248,8 +250,8 @@ def cameras_to_opengl(cameras: Cameras):
     flip = jnp.asarray(_GL_TO_CV, cameras.rotation.dtype)
     n = len(cameras)
     view = jnp.zeros((n, 4, 4), cameras.rotation.dtype).at[:, 3, 3].set(1.0)
-    view = view.at[:, :3, :3].set(jnp.einsum("ij,njk->nik", flip, cameras.rotation))
-    view = view.at[:, :3, 3].set(jnp.einsum("ij,nj->ni", flip, cameras.translation))
+    view = view.at[:, :3, :3].set(jnp.einsum("ij,njk->nik", flip, cameras.rotation, precision=_HI))
+    view = view.at[:, :3, 3].set(jnp.einsum("ij,nj->ni", flip, cameras.translation, precision=_HI))
     fov = jnp.rad2deg(2.0 * jnp.arctan(0.5 * cameras.height / cameras.focal[:, 1]))
     return view, fov
 

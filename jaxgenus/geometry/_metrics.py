@@ -26,6 +26,8 @@ from scipy.spatial import cKDTree
 
 from jaxgenus.geometry._mesh import Mesh
 
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+
 __all__ = [
     "ChamferResult",
     "ICPResult",
@@ -257,7 +259,7 @@ def _rotation_from_vector(w: np.ndarray) -> np.ndarray:
 
 def _rotation_jnp(w):
     """Rodrigues in jnp, smooth at `w = 0` (where every solve starts)."""
-    t2 = jnp.dot(w, w)
+    t2 = jnp.dot(w, w, precision=_HI)
     small = t2 < 1e-8
     t = jnp.sqrt(jnp.where(small, 1.0, t2))
     a = jnp.where(small, 1.0 - t2 / 6.0, jnp.sin(t) / t)
@@ -266,13 +268,13 @@ def _rotation_jnp(w):
     k = jnp.stack(
         [jnp.stack([zero, -w[2], w[1]]), jnp.stack([w[2], zero, -w[0]]), jnp.stack([-w[1], w[0], zero])]
     )
-    return jnp.eye(3, dtype=w.dtype) + a * k + b * (k @ k)
+    return jnp.eye(3, dtype=w.dtype) + a * k + b * jnp.matmul(k, k, precision=_HI)
 
 
 def _plane_residuals(y, r):
     """`r @ [vec(exp(w)), t, -1]` for `y = (w, t)`: the point-to-plane residuals, reduced (see `_reduce`)."""
     z = jnp.concatenate([_rotation_jnp(y[:3]).reshape(-1), y[3:], -jnp.ones(1, y.dtype)])
-    return r @ z
+    return jnp.matmul(r, z, precision=_HI)
 
 
 def _reduce(p: np.ndarray, q: np.ndarray, n: np.ndarray) -> np.ndarray:

@@ -36,6 +36,8 @@ from jaxtyping import Array, Float, Int
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim._pyramid import scaled_cameras
 
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+
 __all__ = ["MIN_STD", "ROBUST_SPREAD", "STEREO_SCALE", "consistency_windows", "photo_consistency", "robust_cost",
            "stereo_depth_cost", "view_neighbours"]
 
@@ -148,9 +150,9 @@ def _warp_one(depth, covered, ref_cam, ref_img, nb_cam, nb_img, nb_depth):
     v, u = jnp.meshgrid(jnp.arange(h, dtype=depth.dtype) + 0.5, jnp.arange(w, dtype=depth.dtype) + 0.5, indexing="ij")
     ray = jnp.stack([(u - pp[0]) / f[0], (v - pp[1]) / f[1], jnp.ones_like(u)], -1)
     x_cam = ray * depth[..., None]
-    x_world = jnp.einsum("ji,hwj->hwi", rot, x_cam - t)
+    x_world = jnp.einsum("ji,hwj->hwi", rot, x_cam - t, precision=_HI)
     nrot, nt, nf, npp = nb_cam
-    y = jnp.einsum("ij,hwj->hwi", nrot, x_world) + nt
+    y = jnp.einsum("ij,hwj->hwi", nrot, x_world, precision=_HI) + nt
     z = y[..., 2]
     safe_z = jnp.where(z > 1e-6, z, 1.0)
     un = nf[0] * y[..., 0] / safe_z + npp[0]

@@ -19,6 +19,8 @@ from jaxgenus.geometry import face_normals
 from jaxgenus.rendering._projection import projected_faces
 from jaxgenus.rendering._splat import CUTOFF_LOG, DC
 
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+
 __all__ = ["FACING_WIDTH", "Faces", "attribute_planes", "blur_radius", "check_inputs", "check_scalar", "face_setup",
            "facing_log_weight"]
 
@@ -55,7 +57,7 @@ def facing_log_weight(tw, rot, trans):
     views, so its backward costs little next to a per-view set-up."""
     n = jnp.cross(tw[:, 1] - tw[:, 0], tw[:, 2] - tw[:, 0])  # (F, 3)
     c = jnp.mean(tw, axis=1)
-    hi = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
+    hi = _HI
     centre = -jnp.einsum("nji,nj->ni", rot, trans, precision=hi)  # (N, 3)
     num = jnp.matmul(centre, n.T, precision=hi) - jnp.sum(n * c, axis=-1)[None, :]
     dist2 = jnp.sum(centre * centre, -1)[:, None] - 2.0 * jnp.matmul(centre, c.T, precision=hi) + jnp.sum(c * c, -1)[None, :]
@@ -178,7 +180,7 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
                 else:
                     ldir = jnp.broadcast_to(jnp.asarray(light, dtype), (n_views, 3))
                     ldir = ldir / jnp.linalg.norm(ldir, axis=-1, keepdims=True)
-                lam = jnp.maximum(jnp.einsum("fi,ni->nf", nrm, ldir), 0.0)
+                lam = jnp.maximum(jnp.einsum("fi,ni->nf", nrm, ldir, precision=_HI), 0.0)
                 parts.append((ambient + (1.0 - ambient) * lam)[..., None])
     if vertex_colors is not None:
         corners = vertex_colors.astype(dtype)[mesh.faces]  # (F, 3, 3)

@@ -40,12 +40,15 @@ of the mesh. The renderer's `"color"` channel blends either like the normals.
 from __future__ import annotations
 
 import numpy as np
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from jaxgenus.geometry import Mesh
 from jaxgenus.geometry import face_normals, vertex_normals
 from jaxgenus.rendering._render import SHADINGS, render
+
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
 
 __all__ = ["LIGHTING_SHAPE", "LIGHTING_SHAPES", "SHADINGS", "directional_lighting", "face_colors", "irradiance",
            "lighting_model", "render_photo", "shading_colors", "vertex_colors"]
@@ -89,9 +92,9 @@ def irradiance(normals: Float[Array, "... 3"], lighting: Float[Array, "3 L"]) ->
     n = jnp.asarray(normals)
     lt = lighting.astype(n.dtype)
     if lighting_model(lighting) == "sh":
-        return 1.0 + _basis(n) @ lt.T
+        return 1.0 + jnp.matmul(_basis(n), lt.T, precision=_HI)
     strength = jnp.sqrt(jnp.sum(lt * lt, axis=1) + 1e-20)  # smooth at zero: no NaN gradient at the start
-    return 1.0 - 0.25 * strength + jnp.maximum(n @ lt.T, 0.0)
+    return 1.0 - 0.25 * strength + jnp.maximum(jnp.matmul(n, lt.T, precision=_HI), 0.0)
 
 
 def _sphere_points(count: int) -> np.ndarray:
