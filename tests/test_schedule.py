@@ -29,6 +29,10 @@ def test_cost_model_recovers_a_linear_step_cost():
     assert model.step_costs(done) == pytest.approx((a, b), rel=1e-6)
     expected = n * (a + b * 480_000) + 8.0 + 1.0 + n * (a + b * 2_000_000) + 8.0 + b * model.verdict_pixels / 3
     assert model.remaining(done) == pytest.approx(expected, rel=1e-6)
+    # a polish cycle of the last level is a program of its own: it compiles too
+    polished = _schedule.CostModel(pixels=model.pixels + (2_000_000,), remeshes=model.remeshes + (False,), steps=n,
+                                   verdict_pixels=model.verdict_pixels, polish=1)
+    assert polished.remaining(done) == pytest.approx(expected + n * (a + b * 2_000_000) + 8.0, rel=1e-6)
     # one level timed: the fixed part is PIXELS_PER_FACE pixels per face, the rest follows the pixels
     one = model.step_costs(done[:1])
     assert one[0] / one[1] == pytest.approx(_schedule.PIXELS_PER_FACE * 1000)
@@ -52,6 +56,42 @@ def test_verdict_renders_in_chunks_with_the_same_numbers(monkeypatch):
     chunked = _verdict.silhouette_ious(mesh, cams, target[..., 3], sigma=0.1, normals=2 * target[..., :3] - 1)
     assert chunked[0] == whole[0] and np.allclose(chunked[1], whole[1], rtol=1e-12)
     assert min(whole[0]) > 0.5
+
+
+def test_verdict_chunks_share_one_program(monkeypatch):
+    """Where the JAX splat renders (GPUs; emulated here by a backend that says "gpu"), the verdict gives
+    every chunk one plan and one view count (the last chunk padded): one compiled render for all the
+    chunks of a mesh, and one program for the photo-consistency windows, with the numbers of one chunk.
+    A plan per chunk compiled a program per chunk (DTU scan24 on an H200: 86 s of verdict)."""
+    import jax
+
+    from _raycast import cell_albedo, raycast_lambert
+    from _meshes import torus_trimesh
+    from jaxgenus.optim import count_compilations, view_neighbours
+
+    cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=48)
+    mesh = torus(1.0, 0.33, 48, 24, capacity=4096)
+    photos = np.asarray(raycast_lambert(cams, torus_trimesh(1.0, 0.35, 48, 24), light_direction=(0.4, 0.8, 0.45),
+                                        ambient=0.25, albedo=cell_albedo(0.1)), np.float32)
+    table = view_neighbours(cams)
+    lighting, _ = jg.directional_lighting((0.4, 0.8, 0.45), 0.25)
+    albedo = np.full((mesh.vertex_capacity, 3), 0.5, np.float32)
+
+    def scores():
+        return (_verdict.silhouette_ious(mesh, cams, photos[..., 3], sigma=0.1)[0],
+                _verdict.photo_errors(mesh, cams, photos, albedo, lighting, sigma=0.1),
+                _verdict.consistency_residuals(mesh, cams, photos, table, sigma=0.1))
+
+    monkeypatch.setattr(jax, "default_backend", lambda: "gpu")
+    whole = scores()
+    monkeypatch.setattr(_verdict, "CHUNK_PIXELS", 7 * 48 * 48)  # chunks of 7 and 5 (padded to 7)
+    assert [n for _, n in _verdict._chunks(cams)] == [7, 5]
+    with count_compilations() as counts:
+        chunked = scores()
+    assert counts["_render_jit"] <= 2 and counts["_windows"] == 1, dict(counts)  # silhouettes, colours; windows
+    assert chunked[0] == whole[0] and min(whole[0]) > 0.8
+    assert np.allclose(chunked[1], whole[1], rtol=1e-5) and np.allclose(chunked[2], whole[2], rtol=1e-4, atol=1e-6, equal_nan=True)
+    assert np.isfinite(whole[2]).sum() >= 5 and np.isfinite(whole[2][7:]).any(), whole[2]
 
 
 def test_detail_floor_follows_the_face_budget():

@@ -47,11 +47,25 @@ class StereoDepths(NamedTuple):
 
 
 def _box(x, r: int):
-    """Sums of `x (..., H, W)` over `(2r+1)^2` windows (zero outside), by cumulative sums."""
-    k = 2 * r + 1
-    pad = [(0, 0)] * (x.ndim - 2) + [(r + 1, r), (r + 1, r)]
-    c = jnp.cumsum(jnp.cumsum(jnp.pad(x, pad), -2), -1)
-    return c[..., k:, k:] - c[..., :-k, k:] - c[..., k:, :-k] + c[..., :-k, :-k]
+    """Sums of `x (..., H, W)` over `(2r+1)^2` windows (zero outside): separable sums of shifted
+    slices (on a CPU 4x faster than running sums, and without their float32 cancellation)."""
+    h, w = x.shape[-2:]
+    lead = [(0, 0)] * (x.ndim - 2)
+    p = jnp.pad(x, lead + [(0, 0), (r, r)])
+    rows = sum(p[..., i:i + w] for i in range(2 * r + 1))
+    p = jnp.pad(rows, lead + [(r, r), (0, 0)])
+    return sum(p[..., i:i + h, :] for i in range(2 * r + 1))
+
+
+def _best_two_mean(scores):
+    """The mean of the two highest of `scores (K, H, W)` along K (the highest alone for K = 1): a max
+    and a masked max, on a CPU 17x faster than sorting K."""
+    top = scores.max(0)
+    if len(scores) == 1:
+        return top
+    first = jnp.argmax(scores, 0)
+    second = jnp.where(jnp.arange(len(scores))[:, None, None] == first[None], -jnp.inf, scores).max(0)
+    return 0.5 * (top + second)
 
 
 def _sample(img, u, v):
@@ -98,9 +112,7 @@ def _sweep(ref, ref_mask, nbs, nb_masks, rays, to_nb, inv_depths, r_win=3):
         warped = jax.vmap(_sample)(nbs, u, v)
         seen = jax.vmap(_sample)(nb_masks, u, v)
         m = ref_mask[None] * (front & (seen > 0.5))
-        ncc = jax.vmap(lambda b, mm: _ncc(ref, b, mm, r_win))(warped, m)  # (K, H, W)
-        best = -jnp.sort(-ncc, axis=0)
-        return 0.5 * (best[0] + best[min(1, len(nbs) - 1)])
+        return _best_two_mean(jax.vmap(lambda b, mm: _ncc(ref, b, mm, r_win))(warped, m))  # of (K, H, W)
 
     return jax.lax.map(plane, inv_depths)
 

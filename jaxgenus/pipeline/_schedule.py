@@ -8,9 +8,9 @@ level twice the last, the images' own size for the final refinement) and how a s
 step renders: a step costs `a + b * pixels` seconds, with `a` (the mesh's part: solves, remesh
 carry, projection) and `b` (per rendered pixel) measured on this machine from the cycles that
 ran (one level measured: `a` is taken as the cost of `PIXELS_PER_FACE` pixels per face); a
-cycle at a level not fitted before also compiles (as long as the longest compile so far), a
-remeshing cycle remeshes (the mean remesh time so far), and the verdict renders every view at full
-size (forward only: a third of a step's cost per pixel).
+cycle at a level not fitted before, and the first polish cycle, also compiles (as long as the
+longest compile so far), a remeshing cycle remeshes (the mean remesh time so far), and the
+verdict renders every view at full size (forward only: a third of a step's cost per pixel).
 """
 
 from __future__ import annotations
@@ -149,12 +149,14 @@ class CostModel:
         remeshes: per cycle, whether it remeshes.
         steps: optimizer steps per cycle.
         verdict_pixels: pixels the verdict renders (every view at full size, once per render).
+        polish: how many of the cycles, the last ones, are polish cycles (a program of their own).
     """
 
     pixels: tuple[int, ...]
     remeshes: tuple[bool, ...]
     steps: int
     verdict_pixels: int
+    polish: int = 0
 
     @staticmethod
     def of(setup: Setup, options: ReconstructOptions, fitted: list[Level], lengths: list[float],
@@ -165,7 +167,7 @@ class CostModel:
         n, h, w = len(setup.held_cams()), setup.cams.height, setup.cams.width
         remeshes = tuple(bool(x > 0 and options.remesh is not None) for x in lengths)
         return CostModel(tuple(lv.pixels for lv in fitted) + (fitted[-1].pixels,) * polish,
-                         remeshes + (False,) * polish, options.steps_per_cycle, renders * n * h * w)
+                         remeshes + (False,) * polish, options.steps_per_cycle, renders * n * h * w, polish)
 
     def step_costs(self, done: list[CycleRecord]) -> tuple[float, float]:
         """`(a, b)`: seconds per step and per rendered pixel per step, fitted to the cycles done (a
@@ -191,15 +193,16 @@ class CostModel:
         a, b = self.step_costs(done)
         overhead = [max(r.seconds - (r.optimizer_seconds or r.seconds) - (r.remesh_seconds or 0.0), 0.0)
                     for r in done]
-        fitted = {self.pixels[r.cycle] for r in done}
-        compile_s = max(overhead)  # a new level compiles a new program: as long as the longest so far
+        program = lambda c: (self.pixels[c], c >= len(self.pixels) - self.polish)  # noqa: E731
+        fitted = {program(r.cycle) for r in done}
+        compile_s = max(overhead)  # a new level or the polish compiles a new program: as long as the longest so far
         remesh = [r.remesh_seconds for r in done if r.remesh_seconds is not None]
         remesh_s = float(np.mean(remesh)) if remesh else 0.0
         total = 0.0
         for c in range(done[-1].cycle + 1, len(self.pixels)):
             p = self.pixels[c]
-            total += self.steps * (a + b * p) + (compile_s if p not in fitted else 0.0)
+            total += self.steps * (a + b * p) + (compile_s if program(c) not in fitted else 0.0)
             total += remesh_s if self.remeshes[c] else 0.0
-            fitted.add(p)
+            fitted.add(program(c))
         verdict = (b if b > 0 else self.prior(done)) * self.verdict_pixels / 3.0  # forward only: a third of a step's
         return total + verdict
