@@ -192,3 +192,22 @@ def test_stereo_carves_only_photos_of_a_fine_texture(scene):
         said = [x for x in lines if x.startswith("stereo")]
         assert len(said) == 1 and ("no carving" not in said[0]) == carves, said
         assert setup.stereo is not None
+
+
+def test_the_polish_smooths_by_its_own_lambda():
+    """The polish cycles run with `polish_lambda` (less smoothing than the cycles' `lambda_`); the
+    cycles keep theirs; a negative value is refused by name."""
+    from types import SimpleNamespace
+
+    from jaxgenus.pipeline._cycles import _polish_options
+
+    level = SimpleNamespace(valid=None, crop=0)
+    base = jg.ReconstructOptions()
+    assert base.optimize.lambda_ == 19.0 and base.polish_lambda == 5.0
+    assert _polish_options(base, level, 4.0, None).lambda_ == 5.0
+    opts = base.updated(polish_lambda=12.0, lambda_=30.0)
+    polished = _polish_options(opts, level, 4.0, None)
+    assert polished.lambda_ == 12.0 and opts.optimize.lambda_ == 30.0
+    assert polished.weights.alpha == 4.0 and polished.weights.photo == 0.0 and polished.average == 0.95
+    with pytest.raises(ValueError, match="polish_lambda"):
+        jg.ReconstructOptions(polish_lambda=-1.0)

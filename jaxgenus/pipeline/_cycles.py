@@ -333,11 +333,13 @@ def polish_count(options: ReconstructOptions, level: Level) -> int:
 
 def _polish_options(options: ReconstructOptions, level: Level, alpha: float, plan) -> OptimizeOptions:
     """The polish's optimizer settings: the silhouettes at `alpha` and colour photo-consistency, unblurred,
-    only (no shading, albedo, stereo or ratio terms), iterates averaged over about the last 20 steps."""
+    only (no shading, albedo, stereo or ratio terms), iterates averaged over about the last 20 steps,
+    smoothing `options.polish_lambda`."""
     weights = dataclasses.replace(options.optimize.weights, alpha=alpha, photo=0.0, albedo_smoothness=0.0, stereo=0.0,
                                   shading_ratio=0.0, carve=0.0, containment=0.0, consistency_blur=0.0,
                                   consistency_colour=1.0)
-    return dataclasses.replace(_optimize_options(options, plan, level), weights=weights, average=0.95)
+    return dataclasses.replace(_optimize_options(options, plan, level), weights=weights, average=0.95,
+                               lambda_=options.polish_lambda)
 
 
 def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: float, alpha: float,
