@@ -195,8 +195,9 @@ def test_stereo_carves_only_photos_of_a_fine_texture(scene):
 
 
 def test_the_polish_smooths_by_its_own_lambda():
-    """The polish cycles run with `polish_lambda` (less smoothing than the cycles' `lambda_`); the
-    cycles keep theirs; a negative value is refused by name."""
+    """The polish cycles run with `polish_lambda` (less smoothing than the cycles' `lambda_`, which
+    keep theirs) and the cycles' silhouette weight unless `polish_alpha` sets one; negative values
+    are refused by name."""
     from types import SimpleNamespace
 
     from jaxgenus.pipeline._cycles import _polish_options
@@ -204,10 +205,13 @@ def test_the_polish_smooths_by_its_own_lambda():
     level = SimpleNamespace(valid=None, crop=0)
     base = jg.ReconstructOptions()
     assert base.optimize.lambda_ == 19.0 and base.polish_lambda == 5.0
-    assert _polish_options(base, level, 4.0, None).lambda_ == 5.0
-    opts = base.updated(polish_lambda=12.0, lambda_=30.0)
-    polished = _polish_options(opts, level, 4.0, None)
+    polished = _polish_options(base.updated(alpha=4.0), level, None)
+    assert polished.lambda_ == 5.0 and polished.weights.alpha == 4.0  # the cycles' silhouette weight
+    opts = base.updated(polish_lambda=12.0, lambda_=30.0, polish_alpha=2.5)
+    polished = _polish_options(opts, level, None)
     assert polished.lambda_ == 12.0 and opts.optimize.lambda_ == 30.0
-    assert polished.weights.alpha == 4.0 and polished.weights.photo == 0.0 and polished.average == 0.95
+    assert polished.weights.alpha == 2.5 and polished.weights.photo == 0.0 and polished.average == 0.95
     with pytest.raises(ValueError, match="polish_lambda"):
         jg.ReconstructOptions(polish_lambda=-1.0)
+    with pytest.raises(ValueError, match="polish_alpha"):
+        jg.ReconstructOptions(polish_alpha=-1.0)

@@ -331,10 +331,11 @@ def polish_count(options: ReconstructOptions, level: Level) -> int:
     return options.polish_cycles if level.neighbours is not None and options.optimize.weights.consistency > 0 else 0
 
 
-def _polish_options(options: ReconstructOptions, level: Level, alpha: float, plan) -> OptimizeOptions:
-    """The polish's optimizer settings: the silhouettes at `alpha` and colour photo-consistency, unblurred,
-    only (no shading, albedo, stereo or ratio terms), iterates averaged over about the last 20 steps,
-    smoothing `options.polish_lambda`."""
+def _polish_options(options: ReconstructOptions, level: Level, plan) -> OptimizeOptions:
+    """The polish's optimizer settings: the silhouettes (at `options.polish_alpha`, None: the cycles'
+    weight) and colour photo-consistency, unblurred, only (no shading, albedo, stereo or ratio terms),
+    iterates averaged over about the last 20 steps, smoothing `options.polish_lambda`."""
+    alpha = options.optimize.weights.alpha if options.polish_alpha is None else options.polish_alpha
     weights = dataclasses.replace(options.optimize.weights, alpha=alpha, photo=0.0, albedo_smoothness=0.0, stereo=0.0,
                                   shading_ratio=0.0, carve=0.0, containment=0.0, consistency_blur=0.0,
                                   consistency_colour=1.0)
@@ -342,10 +343,10 @@ def _polish_options(options: ReconstructOptions, level: Level, alpha: float, pla
                                lambda_=options.polish_lambda)
 
 
-def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: float, alpha: float,
+def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: float,
                callback: Callable | None, estimate: Callable | None = None) -> CycleRun:
     """`run` followed by `polish_count` polish cycles of `level` (module doc; the step size of the last
-    cycle, fresh Adam moments, the connectivity kept; `alpha`: the silhouette weight), their rows
+    cycle, fresh Adam moments, the connectivity kept), their rows
     (`polish` True) and steps appended to `run`'s. The other arguments as in `run_per_cycle`."""
     n = polish_count(options, level)
     if n == 0:
@@ -353,7 +354,7 @@ def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: flo
     app = run.state.appearance
     state = init_optimizer_state(run.state.mesh, run.state.key, albedo=app.albedo, lighting=app.lighting)
     plan = _cycle_plan(state.mesh, level.cameras, options)  # the connectivity stays: one plan
-    opt, steps = _polish_options(options, level, alpha, plan), options.steps_per_cycle
+    opt, steps = _polish_options(options, level, plan), options.steps_per_cycle
     lr = jnp.float32(options.lr_decay ** (options.n_cycles - 1))
     cycles, compiled, waited = list(run.cycles), dict(run.compilations), run.callback_seconds
     all_steps = [run.steps]

@@ -110,7 +110,6 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
     levels = fit_levels(setup, options, start.mesh)
-    alpha = options.optimize.weights.alpha  # the polish's silhouette weight: as set, not as a fine texture sets it
     options = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say)
     lengths = world_lengths(setup, options, levels)
     polish = polish_count(options, levels[-1])
@@ -132,7 +131,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     if polish:
         say(f"polish: {polish} cycles of {options.steps_per_cycle} steps on the silhouettes and colour "
             "photo-consistency only (polish_cycles=0 / --polish-cycles 0: none)")
-        run = run_polish(run, levels[-1], options, t0, alpha, user_callback, remaining)
+        run = run_polish(run, levels[-1], options, t0, user_callback, remaining)
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)
