@@ -65,6 +65,7 @@ from jaxgenus.rendering import (
 )
 from jaxgenus.capture import (
     load_cameras,
+    load_region,
     load_images,
     LoadedImages,
     pair_images,
@@ -153,6 +154,7 @@ __all__ = [
     "largesteps_solve",
     "lighting_model",
     "load_cameras",
+    "load_region",
     "load_images",
     "load_mesh",
     "LoadedImages",

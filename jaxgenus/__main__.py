@@ -192,6 +192,32 @@ def _captured(args, say, devices):
     return loaded.images, cams, loaded.targets, loaded.views
 
 
+def _region(args, images, cams, say):
+    """The sphere the object lies in: `--region X,Y,Z,R`, none, or (auto) the camera file's (IDR/NeuS
+    `scale_mat`) when every silhouette's rays meet it (one process; joined ones let `reconstruct` judge)."""
+    import jax
+
+    import jaxgenus as jg
+
+    if args.region == "none" or not args.cameras:
+        return None
+    if args.region != "auto":
+        try:
+            x, y, z, r = (float(v) for v in args.region.split(","))
+        except ValueError:
+            raise _InputError(f"--region: expected auto, none or X,Y,Z,R, got {args.region!r}") from None
+        return np.array([x, y, z]), r
+    region, a = jg.load_region(args.cameras), np.asarray(images)
+    if region is None or jax.process_count() > 1:
+        return region
+    misses = jg.capture.region_misses(a[..., -1] if a.ndim == 4 else a, cams, region)
+    if misses.max() > 0.01:
+        say(f"region: the sphere of {args.cameras} (scale_mat) misses {misses.max():.0%} of the silhouette of view "
+            f"{int(misses.argmax())}: not used")
+        return None
+    return region
+
+
 def _plan_line(opts, targets) -> str:
     """Cycles, steps and the face budget (with the rise photos may get, `detail_faces`)."""
     more = targets == "photo" and opts.remesh is not None and opts.detail_faces > opts.face_budget
@@ -236,7 +262,7 @@ def _reconstruct(args) -> int:
     _check_outputs(args)
     say = _clock(time.perf_counter())
     opts = _options(args)
-    gt, targets, views = None, args.targets, None
+    gt, targets, views, region = None, args.targets, None, None
     if args.mesh:
         gt = jg.load_mesh(args.mesh)
         v, f = gt.to_numpy()
@@ -247,12 +273,13 @@ def _reconstruct(args) -> int:
         say(f"targets: {args.views} normal maps of {args.mesh} at {args.res}px (synthetic)")
     elif args.images and args.cameras:
         images, cams, targets, views = _captured(args, say, opts.devices)
+        region = _region(args, images, cams, say)
     else:
         raise _InputError("give --mesh GT.obj (synthetic targets) or --images PATH --cameras FILE")
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {_plan_line(opts, targets)}")
     rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say,
-                         views=views)
+                         views=views, region=region)
     _report(rec, gt)
     if jax.process_index() == 0:  # one mesh: the first process writes it
         _write(rec, args.out)
@@ -357,6 +384,8 @@ def main(argv=None) -> int:
                         "(default), or drill small tunnels at spread-out sites")
     r.add_argument("--cameras", help="camera file: OpenCV JSON, COLMAP sparse model, transforms.json, "
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
+    r.add_argument("--region", default="auto", help="a sphere X,Y,Z,R (camera units) the object lies in, cutting the "
+                   "visual hull; 'auto' (default): an IDR/NeuS camera file's scale_mat sphere; 'none'")
     r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")
     r.add_argument("--refits", type=int, default=None, help="fits after the first, each started from the previous "
                    "result: carves concavities few views see (default: up to 2 for normal maps over 1.5 x the "

@@ -464,6 +464,28 @@ def test_idr_npz_size_from_image_folder_and_required(tmp_path):
     assert (cams.height, cams.width) == (H, W)
 
 
+def test_idr_region_is_the_unit_sphere_of_scale_mat(tmp_path):
+    path = write_idr(tmp_path / "cameras.npz", idr_world_mats())
+    centre, radius = jg.load_region(path)  # write_idr: x_world = 0.3 x + (0.01, -0.02, 0.03)
+    np.testing.assert_allclose(centre, [0.01, -0.02, 0.03])
+    assert radius == pytest.approx(0.3)
+    scale = np.diag([0.2, 0.5, 0.3, 1.0])  # an ellipsoid: the sphere holding it
+    np.savez(tmp_path / "b.npz", world_mat_0=idr_world_mats()[0], scale_mat_0=scale)
+    assert jg.load_region(tmp_path / "b.npz")[1] == pytest.approx(0.5)
+    np.savez(tmp_path / "c.npz", world_mat_0=idr_world_mats()[0])
+    assert jg.load_region(tmp_path / "c.npz") is None  # no scale_mat: no region
+    assert jg.load_region(write_par(tmp_path / "x_par.txt", par_rows())) is None  # the format has none
+    for name, bad, match in (("d.npz", np.diag([0.0, 0.3, 0.3, 1.0]), "scale_mat_0.*singular"),
+                             ("e.npz", np.full((4, 4), np.nan), "scale_mat_0.*non-finite")):
+        np.savez(tmp_path / name, world_mat_0=idr_world_mats()[0], scale_mat_0=bad)
+        with raises_naming(tmp_path / name, match):
+            jg.load_region(tmp_path / name)
+    np.savez(tmp_path / "f.npz", world_mat_0=idr_world_mats()[0], world_mat_1=idr_world_mats()[1],
+             scale_mat_0=np.eye(4), scale_mat_1=2 * np.eye(4))
+    with raises_naming(tmp_path / "f.npz", "differ"):
+        jg.load_region(tmp_path / "f.npz")
+
+
 def test_idr_npz_skew_refused(tmp_path):
     mats = idr_world_mats()
     R, t = POSES[1]

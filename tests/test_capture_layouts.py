@@ -92,6 +92,32 @@ def test_hull_keeps_what_the_frame_cuts_off():
     assert _iou(jg.visual_hull(alpha, whole, resolution=48), whole, alpha).mean() >= 0.93
 
 
+def test_a_region_closes_what_the_frame_leaves_open():
+    """Views cut by the frame leave the hull open along their rays (a torus of radius 1: the hull
+    reaches 1.6); the sphere the object lies in (IDR/NeuS's `scale_mat`) closes it and the
+    silhouettes still match. A sphere that misses the silhouettes is refused, naming `region`."""
+    gt = jg.builtin_scene("torus")
+    cut = jg.sphere_cameras(16, radius=3.0, fov_deg=20.0, resolution=48)
+    alpha = np.asarray(jg.render_targets(gt, cut))[..., 3]
+    open_hull = jg.visual_hull(alpha, cut, resolution=48)
+    assert np.linalg.norm(open_hull.to_numpy()[0], axis=1).max() > 1.4
+    region = (np.zeros(3), 1.1)
+    hull = jg.visual_hull(alpha, cut, resolution=48, region=region)
+    assert np.linalg.norm(hull.to_numpy()[0], axis=1).max() < 1.13
+    assert _iou(hull, cut, alpha).mean() >= 0.93
+    assert jg.capture.region_misses(alpha, cut, region).max() == 0.0
+    assert jg.capture.region_misses(alpha, cut, (np.zeros(3), 0.5)).max() > 0.3
+    say = []
+    setup = prepare(alpha, cut, 1, None, jg.ReconstructOptions(), say.append, region=region)
+    world = setup.hulls.get(48, 0)[0].to_numpy()[0] * setup.frame.scale + setup.frame.centre
+    assert np.linalg.norm(world, axis=1).max() < 1.13
+    assert any(line.startswith("region:") for line in say)
+    for bad, match in (((np.zeros(3), 0.5), "region: the sphere .* misses"), ((np.zeros(2), 1.0), "region:"),
+                       ((np.zeros(3), -1.0), "region:"), ((np.full(3, np.nan), 1.0), "region:")):
+        with pytest.raises(ValueError, match=match):
+            jg.reconstruct(alpha, cut, 1, region=bad)
+
+
 def test_verdict_lets_a_smooth_fit_trail_its_carved_start_a_little():
     gt = jg.builtin_scene("torus")
     cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=64)

@@ -67,3 +67,37 @@ def test_cli_settings_map_onto_the_nested_options():
     assert _options(argparse.Namespace(**{**base, "polish_cycles": 0})).texture_polish == 0  # none, also for textures
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000
+
+
+def test_region_from_the_camera_file_or_the_command_line(tmp_path):
+    """`--region`: X,Y,Z,R as given; 'auto' reads an IDR/NeuS file's scale_mat sphere and drops it
+    (saying so) when the silhouettes' rays miss it; anything else is refused naming --region."""
+    import argparse
+
+    import numpy as np
+    import pytest
+
+    from jaxgenus.__main__ import _InputError, _region
+
+    cams = jg.sphere_cameras(6, radius=3.0, fov_deg=40.0, resolution=32)
+    alpha = np.asarray(jg.render_targets(jg.builtin_scene("torus"), cams))[..., 3:]
+    rot, t = np.asarray(cams.rotation, np.float64), np.asarray(cams.translation, np.float64)
+    (fx, fy), (cx, cy) = np.asarray(cams.focal[0], np.float64), np.asarray(cams.principal_point[0], np.float64)
+    k = np.array([[fx, 0, cx - 0.5], [0, fy, cy - 0.5], [0, 0, 1]])  # IDR: the first pixel's centre at 0
+    worlds = {f"world_mat_{i}": np.vstack([k @ np.c_[rot[i], t[i]], [0, 0, 0, 1]]) for i in range(len(cams))}
+
+    def args(region, scale):
+        np.savez(tmp_path / "cameras.npz", **worlds, **{f"scale_mat_{i}": scale for i in range(len(cams))})
+        return argparse.Namespace(region=region, cameras=str(tmp_path / "cameras.npz"))
+
+    said = []
+    unit = np.diag([1.2, 1.2, 1.2, 1.0])
+    centre, radius = _region(args("auto", unit), alpha, cams, said.append)
+    assert np.allclose(centre, 0) and radius == pytest.approx(1.2) and not said
+    small = np.diag([0.5, 0.5, 0.5, 1.0])  # cuts the torus: not used, and the run is told
+    assert _region(args("auto", small), alpha, cams, said.append) is None and "not used" in said[-1]
+    assert _region(args("none", unit), alpha, cams, said.append) is None
+    centre, radius = _region(args("0.5,0,-1,2", unit), alpha, cams, said.append)
+    assert np.allclose(centre, [0.5, 0, -1]) and radius == 2.0
+    with pytest.raises(_InputError, match="--region"):
+        _region(args("1,2", unit), alpha, cams, said.append)

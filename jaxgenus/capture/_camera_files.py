@@ -76,10 +76,10 @@ from pathlib import Path
 from jaxgenus.capture import _colmap
 from jaxgenus.capture._camera_checks import FileCamera, assemble_cameras, check_image_size, resolve_size
 from jaxgenus.geometry import Cameras
-from jaxgenus.capture._krt_cameras import idr_indices, read_idr, read_middlebury, read_opencv_json
+from jaxgenus.capture._krt_cameras import idr_indices, read_idr, read_idr_region, read_middlebury, read_opencv_json
 from jaxgenus.capture._nerf_cameras import read_transforms
 
-__all__ = ["load_cameras"]
+__all__ = ["load_cameras", "load_region"]
 
 _COLMAP_STEMS = ("cameras", "images", "points3D", "rigs", "frames")
 _EXPECTED = (
@@ -125,6 +125,22 @@ def load_cameras(path, *, image_size=None) -> tuple[Cameras, list[str] | None]:
     if kind == "idr":
         return read_idr(target, size)
     return read_middlebury(target, size)
+
+
+def load_region(path) -> tuple[np.ndarray, float] | None:
+    """The sphere `(centre (3,), radius)` in world units that a camera file declares the object to lie
+    in, or None where it declares none. Only IDR/NeuS `cameras*.npz` do (`scale_mat_i`, the unit
+    sphere of their normalization; DTU, BlendedMVS in that layout): `reconstruct(..., region=)`.
+
+    Raises:
+        FileNotFoundError: `path` does not exist.
+        ValueError: an unknown format, or a `scale_mat_i` that is not a scale and a translation.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileNotFoundError(f"{p}: no such file or directory")
+    kind, target, _ = _detect(p)
+    return read_idr_region(target) if kind == "idr" else None
 
 
 # -------------------------------------------------------------------------- detection

@@ -38,6 +38,11 @@ class SceneFrame(NamedTuple):
         dtype = cams.translation.dtype
         return Cameras(cams.rotation, jnp.asarray(t, dtype), cams.focal, cams.principal_point, cams.height, cams.width)
 
+    def region_to_canonical(self, region):
+        """A sphere `(centre, radius)` of the world (or None) in the canonical frame."""
+        return None if region is None else ((np.asarray(region[0], np.float64) - self.centre) / self.scale,
+                                            float(region[1]) / self.scale)
+
     def mesh_to_world(self, mesh: Mesh) -> Mesh:
         """A copy of a canonical-frame `mesh` in world units (padding stays zero)."""
         v = np.asarray(mesh.vertices, np.float64) * self.scale + self.centre
@@ -45,10 +50,11 @@ class SceneFrame(NamedTuple):
         return Mesh(vertices=jnp.asarray(v, mesh.vertices.dtype), faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
 
 
-def scene_frame(alpha, cams: Cameras, *, resolution: int = 48) -> SceneFrame:
+def scene_frame(alpha, cams: Cameras, *, resolution: int = 48, region=None) -> SceneFrame:
     """The canonical frame of silhouettes `alpha (N, H, W)`: the centre of the visual hull's
-    bounding box and the largest distance from it to a carved grid point (plus one cell)."""
-    pts, cell = carved_points(alpha, cams, resolution=resolution)
+    bounding box and the largest distance from it to a carved grid point (plus one cell); the
+    hull within the sphere `region` when one is given (`carved_points`)."""
+    pts, cell = carved_points(alpha, cams, resolution=resolution, region=region)
     centre = 0.5 * (pts.min(0) + pts.max(0))
     radius = float(np.linalg.norm(pts - centre, axis=1).max()) + cell
     return SceneFrame(centre=centre, scale=radius)

@@ -15,15 +15,63 @@ from jaxgenus.geometry import Mesh
 from jaxgenus.capture._targets import check_targets
 from jaxgenus.geometry import connected_components
 
-__all__ = ["HullOccupancy", "carved_points", "cut_views", "hull_occupancy", "hull_thickness", "largest_component", "visual_hull", "visual_hull_bounds"]
+__all__ = ["HullOccupancy", "carved_points", "check_region", "cut_views", "hull_occupancy", "hull_thickness",
+           "largest_component", "region_misses", "visual_hull", "visual_hull_bounds"]
 
 
-def visual_hull_bounds(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds `(lo, hi)` of the visual hull of silhouettes `alpha (N, H, W)`.
+def check_region(region) -> tuple[np.ndarray, float] | None:
+    """`region` checked: None, or `(centre (3,), radius)` of a sphere (float64 centre, float radius > 0)."""
+    if region is None:
+        return None
+    try:
+        centre, radius = region
+        centre, radius = np.asarray(centre, np.float64), float(radius)
+    except (TypeError, ValueError):
+        raise ValueError(f"region: expected (centre (3,), radius) of a sphere, got {region!r}") from None
+    if centre.shape != (3,) or not np.isfinite(centre).all() or not (math.isfinite(radius) and radius > 0):
+        raise ValueError(f"region: expected a finite centre (3,) and a radius > 0, got {centre.tolist()}, {radius!r}")
+    return centre, radius
+
+
+def region_misses(alpha, cams: Cameras, region, *, step: int = 4) -> np.ndarray:
+    """`(N,)`: per view, the share of its silhouette (alpha >= 0.5, every `step`-th pixel each way)
+    whose rays miss the sphere `region = (centre, radius)`. An object inside the sphere gives 0;
+    a sphere that cuts the object, or one in other units than the cameras, more. Host-side."""
+    centre, radius = check_region(region)
+    rot, trans, focal, pp = _camera_numpy(cams)
+    eyes = -np.einsum("nji,nj->ni", rot, trans)
+    out = np.zeros(len(cams))
+    for i in range(len(cams)):
+        rows, cols = np.nonzero(np.asarray(alpha[i])[::step, ::step] >= 0.5)
+        if not len(rows):
+            continue
+        u, v = cols * step + 0.5, rows * step + 0.5
+        d = np.stack([(u - pp[i, 0]) / focal[i, 0], (v - pp[i, 1]) / focal[i, 1], np.ones(len(u))], 1) @ rot[i]
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        oc = eyes[i] - centre
+        b = d @ oc
+        disc = b * b - (oc @ oc - radius * radius)
+        hit = (disc >= 0) & (np.sqrt(np.maximum(disc, 0.0)) - b >= 0)  # the far crossing lies ahead
+        out[i] = 1.0 - hit.mean()
+    return out
+
+
+def _in_region(points: np.ndarray, region) -> np.ndarray:
+    """Soft membership of `points` in the sphere `region` (None: 1 everywhere), as an occupancy: 0.5 on
+    the sphere, from 1 to 0 across a shell of 1/64 of its radius."""
+    if region is None:
+        return np.ones(len(points))
+    centre, radius = region
+    return np.clip(0.5 + (radius - np.linalg.norm(points - centre, axis=1)) * (64.0 / radius), 0.0, 1.0)
+
+
+def visual_hull_bounds(alpha, cams: Cameras, *, resolution: int = 48, region=None) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds `(lo, hi)` of the visual hull of silhouettes `alpha (N, H, W)`
+    (within the sphere `region`, see `carved_points`).
 
     The bounding box of `carved_points`, grown by one grid cell. Host-side numpy.
     """
-    pts, cell = carved_points(alpha, cams, resolution=resolution)
+    pts, cell = carved_points(alpha, cams, resolution=resolution, region=region)
     return pts.min(0) - cell, pts.max(0) + cell
 
 
@@ -72,10 +120,11 @@ def _enough(n_views: int) -> int:
     return max(min(2, n_views), int(np.ceil(0.25 * n_views)))
 
 
-def _carved(alpha: np.ndarray, cams: Cameras, grid: np.ndarray, cut: np.ndarray) -> np.ndarray:
-    """The grid points inside every view's silhouette; a view whose silhouette touches its border
-    keeps what projects outside it, and a point must lie inside `_enough` silhouettes."""
-    inside = np.ones(len(grid), bool)
+def _carved(alpha: np.ndarray, cams: Cameras, grid: np.ndarray, cut: np.ndarray, region=None) -> np.ndarray:
+    """The grid points inside every view's silhouette (and inside the sphere `region`); a view whose
+    silhouette touches its border keeps what projects outside it, and a point must lie inside
+    `_enough` silhouettes."""
+    inside = _in_region(grid, region) >= 0.5
     seen = np.zeros(len(grid), np.int32)
     h, w = cams.height, cams.width
     arrays = _camera_numpy(cams)
@@ -90,22 +139,26 @@ def _carved(alpha: np.ndarray, cams: Cameras, grid: np.ndarray, cut: np.ndarray)
     return inside & (seen >= _enough(len(cams)))
 
 
-def carved_points(alpha, cams: Cameras, *, resolution: int = 48) -> tuple[np.ndarray, float]:
+def carved_points(alpha, cams: Cameras, *, resolution: int = 48, region=None) -> tuple[np.ndarray, float]:
     """The points of a `resolution^3` grid inside the visual hull of `alpha (N, H, W)`, and the grid step.
 
     The grid spans the region every camera sees (around the least-squares intersection of the
     optical axes), grown (up to 1.5^3 times) while the hull reaches its boundary; a point survives
     when it projects inside the silhouette (alpha >= 0.5) of every view (views cut by the frame,
     `cut_views`: of every view it projects into, and of a quarter of the views at least; then
-    only the largest connected piece). Raises `ValueError` when none does.
+    only the largest connected piece). `region = (centre, radius)`: the object lies inside this
+    sphere (IDR/NeuS's unit sphere, `load_region`); the grid spans it and nothing outside it
+    survives, so what views cut by the frame leave open ends there. Raises `ValueError` when
+    no point survives.
     """
     alpha = np.asarray(alpha, np.float32)
-    centre, radius = _axes_centre(cams)
+    region = check_region(region)
+    centre, radius = _axes_centre(cams) if region is None else region
     cut = cut_views(alpha)
-    for _ in range(4):
+    for _ in range(1 if region is not None else 4):
         ticks = np.linspace(-radius, radius, resolution)
         grid = np.stack(np.meshgrid(ticks, ticks, ticks, indexing="ij"), -1).reshape(-1, 3) + centre
-        inside = _carved(alpha, cams, grid, cut)
+        inside = _carved(alpha, cams, grid, cut, region)
         if not inside.any():
             raise ValueError("images: the silhouettes are inconsistent with cams (their visual hull is empty): are the "
                              "images paired with the right cameras, and do the intrinsics match the images' size?")
@@ -128,13 +181,14 @@ def _largest_piece(occupied: np.ndarray) -> np.ndarray:
     return labels == (np.argmax(np.bincount(labels.ravel())[1:]) + 1)
 
 
-def _hull_occupancy(alpha: np.ndarray, cams: Cameras, points: np.ndarray) -> np.ndarray:
+def _hull_occupancy(alpha: np.ndarray, cams: Cameras, points: np.ndarray, region=None) -> np.ndarray:
     """Soft visual-hull occupancy of `points (P, 3)`: the minimum over views of the bilinearly
     interpolated silhouette at their projections (0 outside an image; a view cut by the frame
-    says nothing there, and then a point needs a quarter of the views' silhouettes)."""
+    says nothing there, and then a point needs a quarter of the views' silhouettes), and of the
+    membership of the sphere `region` (`_in_region`)."""
     h, w = cams.height, cams.width
     cut = cut_views(alpha)
-    occ = np.ones(len(points))
+    occ = _in_region(points, region)
     seen = np.zeros(len(points), np.int32)
     arrays = _camera_numpy(cams)
     for i in range(len(cams)):
@@ -173,29 +227,32 @@ class HullOccupancy(NamedTuple):
     hi: np.ndarray
 
 
-def hull_occupancy(images, cams: Cameras, *, resolution: int = 64, bounds=None) -> HullOccupancy:
+def hull_occupancy(images, cams: Cameras, *, resolution: int = 64, bounds=None, region=None) -> HullOccupancy:
     """The soft occupancy of the silhouettes' visual hull (minimum over views of the bilinearly
     sampled silhouette) on a grid of `resolution` cells along the longest side of `bounds`
-    (default `visual_hull_bounds`; pass them to reuse them), two cells of margin. Host-side."""
+    (default `visual_hull_bounds`; pass them to reuse them), two cells of margin; within the
+    sphere `region` (`carved_points`) when one is given. Host-side."""
     alpha = check_targets(images, cams).alpha
+    region = check_region(region)
     if isinstance(resolution, bool) or not isinstance(resolution, int) or resolution < 8:
         raise ValueError(f"resolution must be an int >= 8, got {resolution!r}")
-    lo, hi = visual_hull_bounds(alpha, cams) if bounds is None else (np.asarray(b, np.float64) for b in bounds)
+    lo, hi = (visual_hull_bounds(alpha, cams, region=region) if bounds is None
+              else (np.asarray(b, np.float64) for b in bounds))
     cell = float((hi - lo).max()) / resolution
     lo, hi = lo - 2 * cell, hi + 2 * cell
     shape = np.ceil((hi - lo) / cell).astype(int) + 1
     axes = [lo[d] + cell * np.arange(shape[d]) for d in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
-    return HullOccupancy(_hull_occupancy(alpha, cams, grid).reshape(shape), lo, cell, hi)
+    return HullOccupancy(_hull_occupancy(alpha, cams, grid, region).reshape(shape), lo, cell, hi)
 
 
 def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0, bounds=None,
-                occupancy: HullOccupancy | None = None):
+                occupancy: HullOccupancy | None = None, region=None):
     """Watertight `Mesh` of the visual hull of the silhouettes in `images`.
 
     `images` as in `reconstruct` (`(N, H, W, 4)` RGBA or `(N, H, W)` alpha). The soft
-    occupancy (`hull_occupancy` at `resolution` within `bounds`, or the `occupancy` given,
-    which then replaces both) is closed by `closing > 0` cells (a grey-level morphological
+    occupancy (`hull_occupancy` at `resolution` within `bounds` and the sphere `region`, or the
+    `occupancy` given, which then replaces all three) is closed by `closing > 0` cells (a grey-level morphological
     closing with a ball: fills thin spurious tunnels left by carving, and real holes that
     thin). Its 0.5 level set is extracted with manifold3d's marching tetrahedra, so the mesh
     is a closed manifold; it may have several components, and holes thinner than about a
@@ -206,7 +263,7 @@ def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0
     if isinstance(closing, bool) or not isinstance(closing, int) or closing < 0:
         raise ValueError(f"closing must be an int >= 0, got {closing!r}")
     if occupancy is None:
-        occupancy = hull_occupancy(images, cams, resolution=resolution, bounds=bounds)
+        occupancy = hull_occupancy(images, cams, resolution=resolution, bounds=bounds, region=region)
     occ, lo, cell = np.array(occupancy.values, np.float64), np.asarray(occupancy.lo, np.float64), occupancy.cell
     shape, hi = occ.shape, np.asarray(occupancy.hi, np.float64)
     if closing:

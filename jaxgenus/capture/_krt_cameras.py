@@ -25,7 +25,7 @@ from jaxgenus.capture._camera_checks import (
     whole_pixels,
 )
 
-__all__ = ["idr_indices", "read_idr", "read_middlebury", "read_opencv_json"]
+__all__ = ["idr_indices", "read_idr", "read_idr_region", "read_middlebury", "read_opencv_json"]
 
 
 def read_opencv_json(path: Path, spec: dict, image_size):
@@ -62,6 +62,27 @@ def idr_indices(p: Path) -> list[int]:
     except (OSError, ValueError):
         return []
     return sorted(int(m.group(1)) for k in keys if (m := re.fullmatch(r"world_mat_(\d+)", k)))
+
+
+def read_idr_region(path: Path) -> tuple[np.ndarray, float] | None:
+    """The sphere `(centre, radius)` an IDR/NeuS `cameras*.npz` declares the object to lie in: the
+    image of the unit sphere under `scale_mat_i` (`x_world = scale_mat @ x_normalized`; the smallest
+    sphere holding it when the scale is not the same along every axis). None without `scale_mat_i`."""
+    indices = idr_indices(path)
+    with np.load(path, allow_pickle=False) as z:
+        mats = [z[f"scale_mat_{i}"] for i in indices if f"scale_mat_{i}" in z.files]
+    if not mats:
+        return None
+    label = f"scale_mat_{indices[0]}"
+    S = float_array(path, label, "the matrix", mats[0], (4, 4))
+    if any(np.shape(m) != (4, 4) or not np.allclose(m, S, rtol=1e-6, atol=0.0) for m in mats[1:]):
+        raise ValueError(f"{path}: the scale_mat_i differ between views (expected one normalization for all)")
+    if not np.allclose(S[3], [0.0, 0.0, 0.0, 1.0]):
+        raise ValueError(f"{path}: {label}: expected a last row 0 0 0 1, got {S[3].tolist()}")
+    scales = np.linalg.svd(S[:3, :3], compute_uv=False)
+    if not scales.min() > 1e-12 * max(scales.max(), 1e-300):
+        raise ValueError(f"{path}: {label}: the 3x3 part is singular (a scale of 0)")
+    return S[:3, 3].copy(), float(scales.max())
 
 
 def _decompose_projection(path: Path, label: str, P: np.ndarray):

@@ -70,6 +70,7 @@ def reconstruct(
     callback=None,
     log=None,
     views=None,
+    region=None,
 ) -> Reconstruction:
     """Reconstruct a watertight mesh of genus `genus` from multi-view images.
 
@@ -97,6 +98,12 @@ def reconstruct(
             of the views `images` holds: each process then passes only its own views
             (`jaxgenus.optim.held_views(len(cams), options.devices)`: those its devices render)
             and all cameras. None: `images` holds every view.
+        region: `(centre (3,), radius)`: a sphere of the cameras' world that holds the object, such
+            as the unit sphere of an IDR/NeuS capture (`jaxgenus.load_region`). The visual hull,
+            and so the start, is cut to it: where the frame cuts the object in the views that would
+            carve them, the silhouettes leave whole regions open (DTU scan24 at 1/4 size: three
+            quarters of the mesh outside the sphere, seen by no view). Every silhouette's rays
+            must meet the sphere (else `ValueError`). None: no bound.
 
     Returns:
         A `Reconstruction` (mesh in the user's frame and units). `history["ok"]` is
@@ -107,14 +114,14 @@ def reconstruct(
     say = log if log is not None else (lambda line: None)
     key = jax.random.key(0) if key is None else key
     _check_arguments(genus, options)
-    setup = prepare(images, cams, genus, targets, options, say, views)
+    setup = prepare(images, cams, genus, targets, options, say, views, region)
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
                            options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0),
-                           key=key, views=views)
+                           key=key, views=views, region=region)
 
     start = first_start(setup, fit_genus, say)
     say(_start_line(start, setup.genus, time.perf_counter() - t0))

@@ -19,8 +19,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupancy, check_targets, consistent_depths, cut_views,
-                              hull_occupancy, hull_thickness, pixel_footprint, scene_frame, stereo_depths, visual_hull_bounds)
+from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupancy, check_region, check_targets, consistent_depths,
+                              cut_views, hull_occupancy, hull_thickness, pixel_footprint, region_misses, scene_frame,
+                              stereo_depths, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim import (LossWeights, albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
                             view_neighbours, views_layout)
@@ -38,6 +39,9 @@ DETAIL_EDGE = 4.0
 #: Plane-sweep stereo for the start runs on the fitted photos downsampled until their longer side is
 #: at most this many pixels (DTU scan24, 41 views: 200x150, about 40 s on 2 CPU cores).
 STEREO_SIZE = 256
+#: `reconstruct(..., region=)`: the share of a view's silhouette whose rays may miss the sphere (mask
+#: edges, a pixel of blur).
+_REGION_SLACK = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -227,7 +231,8 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     return options.updated(**change)
 
 
-def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras, options: ReconstructOptions, say):
+def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras, options: ReconstructOptions, say,
+                  region=None):
     """`(carve, stereo)`: the carving of the visual hull by plane-sweep stereo of the photos
     (`ReconstructOptions.stereo_carve`) as a map of occupancy grids, and `Setup.stereo`; `(None, None)`
     for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over devices.
@@ -249,7 +254,7 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
         if options.optimize.weights.stereo <= 0:
             say("stereo: off" + why)
             return None, None
-    coarse = hull_occupancy(alpha, hull_cams, resolution=32, bounds=bounds)
+    coarse = hull_occupancy(alpha, hull_cams, resolution=32, bounds=bounds, region=region)
     table = view_neighbours(scaled, points=coarse.lo + coarse.cell * np.argwhere(coarse.values >= 0.5))
     depths = consistent_depths(stereo_depths(photos, scaled, table, bounds), scaled, table)
     kept = float(np.mean(np.isfinite(depths.depth[photos[..., 3] >= 0.5])))
@@ -334,11 +339,29 @@ def _held(views, images, cams: Cameras) -> np.ndarray | None:
     return held.astype(np.int64)
 
 
+def _region_checked(region, alpha, cams: Cameras, say):
+    """`region` checked (`check_region`) against the silhouettes `alpha` of `cams`: every view's must
+    lie inside the sphere (its rays must meet it); else a `ValueError` naming the worst view."""
+    region = check_region(region)
+    if region is None:
+        return None
+    misses = region_misses(alpha, cams, region)
+    worst = int(np.argmax(misses))
+    if misses[worst] > _REGION_SLACK:
+        raise ValueError(f"region: the sphere (centre {np.round(region[0], 6).tolist()}, radius {region[1]:.6g}) misses "
+                         f"{misses[worst]:.0%} of the silhouette of view {worst}: the object must lie inside it, in "
+                         "the cameras' units and frame")
+    say(f"region: the object lies in the sphere of centre {np.round(region[0], 6).tolist()}, radius {region[1]:.6g}; "
+        "the visual hull is cut to it")
+    return region
+
+
 def prepare(images, cams: Cameras, genus: int | None, targets: str | None, options: ReconstructOptions,
-            say: Callable[[str], None], views=None) -> Setup:
+            say: Callable[[str], None], views=None, region=None) -> Setup:
     """The `Setup` of a run (see the module doc); `say(line)` reports each finding. `views`: the
     indices into `cams` of the views `images` holds, when this process holds only some (the
-    others are held by the other processes joined by `jax.distributed`)."""
+    others are held by the other processes joined by `jax.distributed`). `region`: a sphere
+    `(centre, radius)` of the world the object lies in (`reconstruct`), or None."""
     held = _held(views, images, cams)
     tg = check_targets(images, cams if held is None else cams[held], targets)
     if held is not None:  # every process must fit the same kind of targets
@@ -356,16 +379,17 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     if held is not None:
         say(f"views: this process holds {len(held)} of {len(cams)} views; the silhouettes of all at 1/{factor} "
             "for the frame and the visual hulls")
-    frame = scene_frame(alpha, scaled_cameras(cams, factor))
-    canonical = frame.cameras_to_canonical(cams)
+    region = _region_checked(region, alpha, scaled_cameras(cams, factor), say)
+    frame = scene_frame(alpha, scaled_cameras(cams, factor), region=region)
+    canonical, region = frame.cameras_to_canonical(cams), frame.region_to_canonical(region)
     say(f"frame: object centre {np.round(frame.centre, 6).tolist()}, radius {frame.scale:.6g} (user units); "
         f"targets {tg.kind}{' (inferred)' if tg.inferred else ''}"
         + (f"; silhouettes read at 1/{factor} for the frame and the visual hulls" if factor > 1 else ""))
     hull_cams = scaled_cameras(canonical, factor)
-    lo, hi = visual_hull_bounds(alpha, hull_cams)
+    lo, hi = visual_hull_bounds(alpha, hull_cams, region=region)
     pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
-    carve, stereo = _stereo_carve(tg, canonical, (lo, hi), alpha, hull_cams, options, say)
-    hulls = HullTable(alpha, hull_cams, (lo, hi), carve)
+    carve, stereo = _stereo_carve(tg, canonical, (lo, hi), alpha, hull_cams, options, say, region)
+    hulls = HullTable(alpha, hull_cams, (lo, hi), carve, region)
     notes = _cut_note(alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
     thickness, fine = _thin(canonical, hulls, pixel, options, say)

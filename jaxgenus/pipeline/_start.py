@@ -52,18 +52,21 @@ class Start:
 
 class HullTable:
     """The largest component of the visual hull and its genus per `(resolution, closing)`, built on
-    first use within `bounds` (the hull's bounds, computed once). One table serves one run (the
+    first use within `bounds` (the hull's bounds, computed once) and the sphere `region` (None: no
+    bound). One table serves one run (the
     genus estimate, the thin-structure test and the start share its hulls); the occupancy grid of
     a resolution is sampled once and closed as each closing asks."""
 
-    def __init__(self, alpha, cams: Cameras, bounds, carve=None):
+    def __init__(self, alpha, cams: Cameras, bounds, carve=None, region=None):
         self._alpha, self._cams, self._bounds, self._built, self._grids = alpha, cams, bounds, {}, {}
+        self._region = region
         self._carve = carve  # None, or a map of a `HullOccupancy` to the one the fit starts from
 
     def occupancy(self, resolution: int):
         """The occupancy grid of `resolution` (carved when the table was given `carve`)."""
         if resolution not in self._grids:
-            grid = hull_occupancy(self._alpha, self._cams, resolution=resolution, bounds=self._bounds)
+            grid = hull_occupancy(self._alpha, self._cams, resolution=resolution, bounds=self._bounds,
+                                  region=self._region)
             self._grids[resolution] = grid if self._carve is None else self._carve(grid)
         return self._grids[resolution]
 
