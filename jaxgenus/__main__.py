@@ -279,7 +279,7 @@ def _reconstruct(args) -> int:
     genus = None if args.genus == "auto" else int(args.genus)
     say(f"genus: {'estimated from the images' if genus is None else genus}; {_plan_line(opts, targets)}")
     rec = jg.reconstruct(images, cams, genus, targets=targets, options=opts, callback=_progress(say), log=say,
-                         views=views, region=region)
+                         views=views, region=region, key=jax.random.key(args.seed))
     _report(rec, gt)
     if jax.process_index() == 0:  # one mesh: the first process writes it
         _write(rec, args.out)
@@ -372,6 +372,8 @@ def main(argv=None) -> int:
                        epilog="exit codes: 0 ok; 1 bad input; 2 usage; 3 the result's genus is not the "
                               "requested one; 4 the result does not match its images (see the verdict)")
     r.add_argument("--mesh", help="ground-truth mesh: render synthetic targets from it")
+    r.add_argument("--seed", type=int, default=0, help="seed of the views each step samples (default 0; a seed gives "
+                   "one result, and other seeds show the run-to-run spread)")
     r.add_argument("--images", help="images: a folder, a quoted glob ('dir/*.png') or a .npy: RGBA PNGs "
                    "(alpha = mask), mask PNGs, or photos with --masks / --background")
     r.add_argument("--masks", help="folder of mask images paired with the photos by file name")

@@ -272,6 +272,11 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
     hist = json.loads(out.with_suffix(".json").read_text())
     assert len(hist["loss"]) == 20 and len(hist["cycles"]) == 2
     assert "[##] cycle 2/2 " in text and "refit" not in text
+    other = tmp_path / "seed1.obj"  # another seed samples other views each step: another result
+    assert main(["reconstruct", "--mesh", str(tmp_path / "gt.obj"), "--genus", "1", "--views", "8", "--res", "32",
+                 "--cycles", "2", "--steps", "10", "--seed", "1", "--out", str(other)]) == 0
+    a, b = jg.load_mesh(out).to_numpy()[0], jg.load_mesh(other).to_numpy()[0]
+    assert a.shape != b.shape or not np.allclose(a, b)
 
 
 def test_fine_preset_keeps_the_method_and_sharpens_the_schedule():
