@@ -138,19 +138,22 @@ def test_fine_textures_turn_the_term_on(scene):
         jg.ReconstructOptions(texture_photo=-1.0)
     with pytest.raises(ValueError, match="texture_polish"):
         jg.ReconstructOptions(texture_polish=-1)
+    with pytest.raises(ValueError, match="texture_adaptive"):
+        jg.ReconstructOptions(texture_adaptive=1)
 
 
 def test_fine_textures_weigh_the_silhouettes_more(scene):
     """For photos of a fine texture the fit raises the silhouette weight to `texture_alpha`, lowers the
     photometric weight to `texture_photo`, turns shading ratios on, compares them unblurred
-    (`texture_blur`) and closes with `texture_polish` polish cycles, each only where the caller left it
+    (`texture_blur`), closes with `texture_polish` polish cycles and remeshes curvature-adaptively
+    (`texture_adaptive`), each only where the caller left it
     at its default; smooth photos keep all, and so do cells the finest level fitted blurs (the share is
     measured on the images the fit sees)."""
     from jaxgenus.optim import pyramid_level
     from jaxgenus.pipeline._setup import FINE_TEXTURE, fine_texture, texture_share
 
     cams, photos, _ = scene
-    base, polish = jg.ReconstructOptions(), []
+    base, polish, adaptive = jg.ReconstructOptions(), [], []
 
     def weights(name, options, factor=1):
         lines, level = [], photos[name] if isinstance(name, str) else name
@@ -158,20 +161,24 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
         fitted = fine_texture(options, "photo", level, len(cams), lines.append)
         w = fitted.optimize.weights
         polish.append(fitted.polish_cycles)
+        adaptive.append(fitted.remesh.adaptive)
         return w.alpha, w.shading_ratio, w.consistency_blur, w.photo, lines
 
     alpha, ratio, blur, photo, said = weights("cells", base)
     assert (alpha, ratio, blur, photo) == (base.texture_alpha, base.texture_ratio, base.texture_blur,
                                            base.texture_photo) == (4.0, 6.0, 0.0, 1.0)
     assert len(said) == 1 and all(s in said[0] for s in ("silhouette weight 4", "shading ratios on", "blur 0",
-                                                         "photometric weight 1", "2 closing polish")), said
+                                                         "photometric weight 1", "2 closing polish",
+                                                         "curvature-adaptive")), said
     assert polish[-1] == base.texture_polish == 2 and base.polish_cycles == 0
-    kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1)
+    assert adaptive[-1] and base.texture_adaptive and not base.remesh.adaptive
+    kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1, adaptive=True)
     assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1  # the caller's kept
-    off = base.updated(texture_alpha=0.0, texture_ratio=0.0, texture_blur=1.0, texture_photo=0.0, texture_polish=0)
-    assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0
+    off = base.updated(texture_alpha=0.0, texture_ratio=0.0, texture_blur=1.0, texture_photo=0.0, texture_polish=0,
+                       texture_adaptive=False)
+    assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
     assert weights("cells", base.updated(consistency=0.0))[2] == 1.0 and polish[-1] == 0  # no term: no polish
-    assert weights("constant", base) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0
+    assert weights("constant", base) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
     # the same cells at 4x the size (44 px): few pixels on an edge; fitted at 1/4 they are fine again
     big = jnp.repeat(jnp.repeat(photos["cells"], 4, axis=1), 4, axis=2)
     assert texture_share(big) < 0.5 * FINE_TEXTURE

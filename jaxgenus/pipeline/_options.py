@@ -164,6 +164,11 @@ class ReconstructOptions:
             0.00171 -> 0.00149 and 0.00146 -> 0.00126; DTU scan24 at 1600x1200: 21.70 -> 22.09 dB
             held-out). Where the texture is smooth it costs: with few textured windows the silhouettes
             take over (kitten, constant albedo: 0.00263 -> 0.00322). 0: never.
+        texture_adaptive: photos of such a fine texture are remeshed between cycles with the
+            curvature-adaptive sizing (`RemeshOptions.adaptive`) when it is off: the budget's faces go
+            to the creases and small parts that photo-consistency can then sharpen, fewer to flat
+            walls (ray-cast 10-px cells on two genus-2 shapes: CD 0.00132 -> 0.00116 and 0.00120 ->
+            0.00111; docs/photometric.md, "Adaptive remeshing for a fine texture"). False: as set.
         polish_lambda: the large-steps `lambda_` of the polish cycles (the cycles keep
             `optimize.lambda_`): less smoothing lets photo-consistency sharpen the creases the
             cycles rounded (5 against 19: eight 0.00149 -> 0.00141, mother_child 0.00126 ->
@@ -205,6 +210,7 @@ class ReconstructOptions:
     stereo_carve: float = 2.0
     polish_cycles: int = 0
     texture_polish: int = 2
+    texture_adaptive: bool = True
     polish_lambda: float = 5.0
     polish_alpha: float | None = None
 
@@ -228,6 +234,8 @@ class ReconstructOptions:
             _number("polish_alpha", self.polish_alpha, 0.0, math.inf)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur"):
             _number(name, getattr(self, name), 0.0, 1.0)
+        if not isinstance(self.texture_adaptive, bool):
+            raise ValueError(f"options.texture_adaptive must be True or False, got {self.texture_adaptive!r}")
         _choice("hidden_handles", self.hidden_handles, ("images", "drill"))
         _choice("lighting", self.lighting, ("sh", "directional"))
         _choice("start", self.start, ("auto", "primitive", "sphere"))

@@ -200,7 +200,7 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     a process of a split run holds only its own views): `shading_ratio` at `texture_ratio` where it is 0,
     the silhouette weight `alpha` at `texture_alpha`, the photometric weight `photo` at `texture_photo`
     and `consistency_blur` at `texture_blur` where they are at their defaults, and `polish_cycles` at
-    `texture_polish` where it is 0. The share is measured on the images the fit sees: a texture the
+    `texture_polish` where it is 0, and the remeshes curvature-adaptive (`texture_adaptive`). The share is measured on the images the fit sees: a texture the
     finest level blurs away is no fine texture."""
     if kind != "photo" or views_layout(n_views, options.devices)[0] is not None:
         return options
@@ -221,6 +221,9 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     if weights.consistency > 0 and options.texture_polish > 0 and options.polish_cycles == 0:
         change["polish_cycles"] = options.texture_polish
         said.append(f"{options.texture_polish} closing polish cycles (texture_polish=0: none)")
+    if options.texture_adaptive and options.remesh is not None and not options.remesh.adaptive:
+        change["adaptive"] = True
+        said.append("curvature-adaptive remeshing (texture_adaptive=False: as set)")
     if not change:
         return options
     share = texture_share(photos)
