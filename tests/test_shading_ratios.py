@@ -186,6 +186,25 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     assert fine_texture(base, "normals", photos["cells"], len(cams), print) is base
 
 
+def test_fine_textures_get_the_face_budget_their_photos_resolve(scene):
+    """Photos of a fine texture that resolve fewer faces than `max_faces` (edges of 4 px on the visual
+    hull) fit with that many, to no less than `texture_faces` of the budget (said); smooth photos,
+    `texture_faces=1` and the caller's options keep the budget."""
+    from jaxgenus.pipeline._setup import prepare
+
+    cams, photos, _ = scene
+    base, said = jg.ReconstructOptions(initial_faces=500).updated(max_faces=30000), []
+    fitted = prepare(photos["cells"], cams, 1, "photo", base, said.append)
+    assert 0 < fitted.resolved < 30000, fitted.resolved
+    budget = fitted.options.face_budget
+    assert budget == max(20000, fitted.resolved // 1000 * 1000) < 30000 and base.face_budget == 30000
+    assert any(line.startswith(f"face budget: {budget} faces (photos of a fine texture") for line in said), said
+    assert prepare(photos["constant"], cams, 1, "photo", base, print).options.face_budget == 30000
+    assert prepare(photos["cells"], cams, 1, "photo", base.updated(texture_faces=1.0), print).options.face_budget == 30000
+    with pytest.raises(ValueError, match="texture_faces"):
+        jg.ReconstructOptions(texture_faces=1.5)
+
+
 def test_stereo_carves_only_photos_of_a_fine_texture(scene):
     """Plane-sweep stereo carves the start only from photos of a fine texture (smooth shading can make two
     views agree on a wrong depth); the stereo depth term stays on for both."""

@@ -169,6 +169,12 @@ class ReconstructOptions:
             to the creases and small parts that photo-consistency can then sharpen, fewer to flat
             walls (ray-cast 10-px cells on two genus-2 shapes: CD 0.00132 -> 0.00116 and 0.00120 ->
             0.00111; docs/photometric.md, "Adaptive remeshing for a fine texture"). False: as set.
+        texture_faces: photos of such a fine texture (at full size) that resolve fewer faces than
+            `max_faces` (`detail_faces`' count: edges of 4 px on the visual hull) get a face budget
+            lowered to that count, to no less than this share of `max_faces`: finer edges than the
+            photos resolve let the texture move the surface (ray-cast 10-px cells at 256^2, 12k
+            faces -> 8k: eight CD 0.00116 -> 0.00109, mother_child 0.00110 -> 0.00105; 6k: 0.00111;
+            docs/photometric.md, "The face budget of a fine texture"). 1: `max_faces` as set.
         polish_lambda: the large-steps `lambda_` of the polish cycles (the cycles keep
             `optimize.lambda_`): less smoothing lets photo-consistency sharpen the creases the
             cycles rounded (5 against 19: eight 0.00149 -> 0.00141, mother_child 0.00126 ->
@@ -211,6 +217,7 @@ class ReconstructOptions:
     polish_cycles: int = 0
     texture_polish: int = 2
     texture_adaptive: bool = True
+    texture_faces: float = 2.0 / 3.0
     polish_lambda: float = 5.0
     polish_alpha: float | None = None
 
@@ -232,7 +239,7 @@ class ReconstructOptions:
             _number(name, getattr(self, name), 0.0, math.inf)
         if self.polish_alpha is not None:
             _number("polish_alpha", self.polish_alpha, 0.0, math.inf)
-        for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur"):
+        for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur", "texture_faces"):
             _number(name, getattr(self, name), 0.0, 1.0)
         if not isinstance(self.texture_adaptive, bool):
             raise ValueError(f"options.texture_adaptive must be True or False, got {self.texture_adaptive!r}")

@@ -71,6 +71,7 @@ class Setup:
             holds only some (`reconstruct(..., views=)`); None: all of them.
         stereo: photo targets on one device: `(depths (N, h, w), factor)`, the plane-sweep depths
             (canonical frame; NaN: none) of `targets.fit` downsampled by `factor`; else None.
+        resolved: the faces the photos resolve (`detail_budget`); 0 where not counted.
     """
 
     images: object
@@ -89,6 +90,7 @@ class Setup:
     notes: tuple[str, ...] = ()
     held: np.ndarray | None = None
     stereo: tuple[np.ndarray, int] | None = None
+    resolved: int = 0
 
     def held_cams(self) -> Cameras:
         """The cameras (canonical frame) of the views this process holds."""
@@ -165,15 +167,23 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
 
 
 def _detailed(options: ReconstructOptions, tg: Targets, n_views: int, hulls: HullTable, pixel: float,
-              say) -> ReconstructOptions:
-    """`options` with the face budget of `detail_budget` (said when raised)."""
+              say) -> tuple[ReconstructOptions, int]:
+    """`(options, resolved)`: `options` with the face budget of `detail_budget` (said when raised), or,
+    for photos of a fine texture (`FINE_TEXTURE` at full size) that resolve fewer faces than
+    `max_faces`, lowered towards that count, to no less than `texture_faces` of it (said)."""
     budget, resolved = detail_budget(options, tg.kind, n_views, hulls.get(options.hull_resolutions[0], 0)[0], pixel)
+    if 0 < resolved < budget and options.texture_faces < 1 and texture_share(tg.fit) >= FINE_TEXTURE:
+        lower = max(options.initial_faces, int(round(options.texture_faces * budget)) // 1000 * 1000, resolved // 1000 * 1000)
+        if lower < budget:
+            say(f"face budget: {lower} faces (photos of a fine texture that resolve about {resolved} at "
+                f"{DETAIL_EDGE:g} px edges; max_faces {budget}; texture_faces=1: as set)")
+            return options.updated(max_faces=lower), resolved
     if budget <= options.face_budget:
-        return options
+        return options, resolved
     say(f"face budget: {budget} faces (the photos resolve about {resolved} at {DETAIL_EDGE:g} px edges; "
         f"max_faces {options.face_budget}, at most detail_faces {options.detail_faces}: set detail_faces=0 "
         "or --max-faces to hold it)")
-    return options.updated(max_faces=budget)
+    return options.updated(max_faces=budget), resolved
 
 
 #: Photos whose albedo edges cover this share of their masks or more get the shading-ratio term
@@ -396,8 +406,8 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     notes = _cut_note(alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
     thickness, fine = _thin(canonical, hulls, pixel, options, say)
-    options = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, say)
+    options, resolved = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, say)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options,
-                 notes=notes, held=held, stereo=stereo)
+                 notes=notes, held=held, stereo=stereo, resolved=resolved)
