@@ -67,6 +67,8 @@ def test_photos_that_resolve_more_detail_get_a_larger_face_budget():
         jg.ReconstructOptions(detail_faces=-1)
     with pytest.raises(ValueError, match="polish_cycles"):
         jg.ReconstructOptions(polish_cycles=-1)
+    with pytest.raises(ValueError, match="polish_average"):
+        jg.ReconstructOptions(polish_average=1.0)
 
 
 def test_a_photo_capture_that_resolves_more_gets_the_budget_from_its_visual_hull():

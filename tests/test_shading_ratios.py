@@ -237,6 +237,7 @@ def test_the_polish_smooths_by_its_own_lambda():
     polished = _polish_options(opts, level, None)
     assert polished.lambda_ == 12.0 and opts.optimize.lambda_ == 30.0
     assert polished.weights.alpha == 2.5 and polished.weights.photo == 0.0 and polished.average == 0.95
+    assert _polish_options(base.updated(polish_average=0.99), level, None).average == 0.99
     with pytest.raises(ValueError, match="polish_lambda"):
         jg.ReconstructOptions(polish_lambda=-1.0)
     with pytest.raises(ValueError, match="polish_alpha"):

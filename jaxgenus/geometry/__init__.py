@@ -31,6 +31,7 @@ from jaxgenus.geometry._metrics import (
 from jaxgenus.geometry._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus.geometry._primitives import genus_primitive
 from jaxgenus.geometry._reprojection import Reprojection, reprojection_psnr
+from jaxgenus.geometry._subdivision import Subdivision, phong_subdivision
 from jaxgenus.geometry._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus.geometry._topology import (
     MeshReport,
@@ -54,6 +55,7 @@ __all__ = [
     "RemeshInfo",
     "RemeshOptions",
     "RemeshStatus",
+    "Subdivision",
     "UniformLaplacian",
     "betti_numbers",
     "bilaplacian_energy",
@@ -81,6 +83,7 @@ __all__ = [
     "load_mesh",
     "look_at",
     "mesh_report",
+    "phong_subdivision",
     "normalize_to_unit_sphere",
     "project",
     "remesh",

@@ -334,13 +334,13 @@ def polish_count(options: ReconstructOptions, level: Level) -> int:
 def _polish_options(options: ReconstructOptions, level: Level, plan) -> OptimizeOptions:
     """The polish's optimizer settings: the silhouettes (at `options.polish_alpha`, None: the cycles'
     weight) and colour photo-consistency, unblurred, only (no shading, albedo, stereo or ratio terms),
-    iterates averaged over about the last 20 steps, smoothing `options.polish_lambda`."""
+    iterates averaged (`options.polish_average`), smoothing `options.polish_lambda`."""
     alpha = options.optimize.weights.alpha if options.polish_alpha is None else options.polish_alpha
     weights = dataclasses.replace(options.optimize.weights, alpha=alpha, photo=0.0, albedo_smoothness=0.0, stereo=0.0,
                                   shading_ratio=0.0, carve=0.0, containment=0.0, consistency_blur=0.0,
                                   consistency_colour=1.0)
-    return dataclasses.replace(_optimize_options(options, plan, level), weights=weights, average=0.95,
-                               lambda_=options.polish_lambda)
+    return dataclasses.replace(_optimize_options(options, plan, level), weights=weights,
+                               average=options.polish_average, lambda_=options.polish_lambda)
 
 
 def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: float,

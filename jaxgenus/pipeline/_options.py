@@ -183,6 +183,13 @@ class ReconstructOptions:
         polish_alpha: the polish's silhouette weight; None: the cycles' (`texture_alpha` for a
             fine texture; 4 against 1: eight 0.00141 -> 0.00132, mother_child 0.00123 -> 0.00120,
             DTU scan24 at 1/4 21.98 -> 22.18 dB held-out).
+        polish_average: the polish's iterate averaging (`OptimizeOptions.average`: about the last
+            `1 / (1 - polish_average)` steps of each polish cycle are averaged).
+        subdivide: the result goes through one `phong_subdivision` (4x the faces; the albedo
+            carried to the new vertices): a fitted mesh's flat faces are chords that cut under
+            its curved parts by about k h^2 / 8, and the new vertices sit on the smooth surface
+            through the fitted ones. The verdict judged the fitted mesh; refits start from it.
+            False: the mesh as fitted (`nicolet()` sets it).
     """
 
     n_cycles: int = 4
@@ -220,6 +227,8 @@ class ReconstructOptions:
     texture_faces: float = 2.0 / 3.0
     polish_lambda: float = 5.0
     polish_alpha: float | None = None
+    polish_average: float = 0.95
+    subdivide: bool = True
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
@@ -239,8 +248,11 @@ class ReconstructOptions:
             _number(name, getattr(self, name), 0.0, math.inf)
         if self.polish_alpha is not None:
             _number("polish_alpha", self.polish_alpha, 0.0, math.inf)
+        _number("polish_average", self.polish_average, 0.0, 0.999)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur", "texture_faces"):
             _number(name, getattr(self, name), 0.0, 1.0)
+        if not isinstance(self.subdivide, bool):
+            raise ValueError(f"subdivide must be a bool, got {self.subdivide!r}")
         if not isinstance(self.texture_adaptive, bool):
             raise ValueError(f"options.texture_adaptive must be True or False, got {self.texture_adaptive!r}")
         _choice("hidden_handles", self.hidden_handles, ("images", "drill"))
@@ -300,8 +312,9 @@ class ReconstructOptions:
 
     @classmethod
     def nicolet(cls, **settings) -> "ReconstructOptions":
-        """Nicolet et al. 2021: sphere start, no remeshing, same renderer, their uniform Adam (the max)."""
-        return cls(start="sphere", remesh=None).updated(adam_quantile=1.0, **settings)
+        """Nicolet et al. 2021: sphere start, no remeshing, same renderer, their uniform Adam (the max),
+        the result as fitted (no `subdivide`)."""
+        return cls(start="sphere", remesh=None, subdivide=False).updated(adam_quantile=1.0, **settings)
 
     def fine(self) -> "ReconstructOptions":
         """A copy set up for thin structures a few pixels wide (e.g. sheets 2 px thick).

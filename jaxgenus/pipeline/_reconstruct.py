@@ -25,7 +25,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from jaxgenus.geometry import Cameras
+from jaxgenus.geometry import Cameras, phong_subdivision
 from jaxgenus.pipeline._fit import FitIndex, fit
 from jaxgenus.pipeline._history import GenusEstimate, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -120,15 +120,23 @@ def reconstruct(
 
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
-                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0),
+                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False),
                            key=key, views=views, region=region)
 
     start = first_start(setup, fit_genus, say)
     say(_start_line(start, setup.genus, time.perf_counter() - t0))
     rec = fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
     if n_refits and rec.genus_ok:
-        return _refits(rec, setup, options, n_refits, key, callback, say)
-    return rec
+        rec = _refits(rec, setup, options, n_refits, key, callback, say)
+    return _subdivided(rec, say) if setup.options.subdivide else rec
+
+
+def _subdivided(rec: Reconstruction, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` with its mesh (and albedo) through one Phong subdivision (`ReconstructOptions.subdivide`)."""
+    sub = phong_subdivision(rec.mesh, values=rec.albedo)
+    say(f"subdivided: {int(rec.mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, the new vertices on the smooth "
+        "surface through the fitted ones (Phong; ReconstructOptions.subdivide=False: off)")
+    return dataclasses.replace(rec, mesh=sub.mesh, albedo=sub.values)
 
 
 def _start_line(start: Start, genus: int, seconds: float) -> str:

@@ -71,7 +71,7 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
     """The level each cycle fits: downsampled copies of the targets (the schedule, photos no finer
     than `detail_floor`), the native level through crops when `optimize.crop` is set (only after
     downsampled cycles); one program of `one_jit` fits the last level throughout."""
-    cams, tg = setup.cams, setup.targets
+    cams = setup.cams
     factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
                                  options.native_cycles)
     scheduled = factors[0] > 1
@@ -79,32 +79,36 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
     factors = [max(f, min(floor, factors[0])) if scheduled else f for f in factors]
     if options.one_jit:  # one program, one image size: the last level throughout
         factors = [factors[-1]] * options.n_cycles
-    mesh, order, valid = views_layout(len(cams), options.devices)
     table = None
     if _consistency_used(setup, options):  # photo-consistency pairs: views that see the same part of the start
         table = jnp.asarray(view_neighbours(cams, points=np.asarray(start.to_numpy()[0], np.float64)))
-    built = {}
-    for f in sorted(set(factors)):
-        level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
-        outside = (jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2))
-                   if options.optimize.weights.containment > 0 else None)
-        crop = options.optimize.crop if (f == 1 and scheduled) else 0
-        lc = scaled_cameras(cams, f)
-        views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
-        if mesh is not None:  # views split over the devices: each renders ceil(views / devices) of its own
-            views = min(-(-views // mesh.size), len(order) // mesh.size) * mesh.size
-            lc = place(lc[order], mesh, split=True)
-            if setup.held is None:
-                level, outside = place((level[order], None if outside is None else outside[order]), mesh, split=True)
-            else:  # this process holds only its own views' images
-                level, outside = place_held((level, outside), mesh, order, setup.held)
-        pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
-        near = table
-        if table is not None and setup.stereo is not None and options.optimize.weights.stereo > 0 and not crop:
-            near = (table, jnp.asarray(_resampled(setup.stereo, f, lc.height, lc.width)))
-        built[f] = Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
-                         None if mesh is None else place(jnp.asarray(valid), mesh, split=True), near)
+    built = {f: _level(setup, options, f, scheduled, table) for f in sorted(set(factors))}
     return [built[f] for f in factors]
+
+
+def _level(setup: Setup, options: ReconstructOptions, f: int, scheduled: bool, table) -> Level:
+    """The pyramid level of factor `f` (`levels`): targets, cameras, how a step renders it."""
+    cams, tg = setup.cams, setup.targets
+    mesh, order, valid = views_layout(len(cams), options.devices)
+    level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
+    outside = (jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2))
+               if options.optimize.weights.containment > 0 else None)
+    crop = options.optimize.crop if (f == 1 and scheduled) else 0
+    lc = scaled_cameras(cams, f)
+    views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
+    if mesh is not None:  # views split over the devices: each renders ceil(views / devices) of its own
+        views = min(-(-views // mesh.size), len(order) // mesh.size) * mesh.size
+        lc = place(lc[order], mesh, split=True)
+        if setup.held is None:
+            level, outside = place((level[order], None if outside is None else outside[order]), mesh, split=True)
+        else:  # this process holds only its own views' images
+            level, outside = place_held((level, outside), mesh, order, setup.held)
+    pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
+    near = table
+    if table is not None and setup.stereo is not None and options.optimize.weights.stereo > 0 and not crop:
+        near = (table, jnp.asarray(_resampled(setup.stereo, f, lc.height, lc.width)))
+    return Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
+                 None if mesh is None else place(jnp.asarray(valid), mesh, split=True), near)
 
 
 def _resampled(stereo, factor: int, height: int, width: int) -> np.ndarray:
