@@ -236,8 +236,8 @@ def test_the_polish_smooths_by_its_own_lambda():
     opts = base.updated(polish_lambda=12.0, lambda_=30.0, polish_alpha=2.5)
     polished = _polish_options(opts, level, None)
     assert polished.lambda_ == 12.0 and opts.optimize.lambda_ == 30.0
-    assert polished.weights.alpha == 2.5 and polished.weights.photo == 0.0 and polished.average == 0.95
-    assert _polish_options(base.updated(polish_average=0.99), level, None).average == 0.99
+    assert polished.weights.alpha == 2.5 and polished.weights.photo == 0.0 and polished.average == 0.99
+    assert _polish_options(base.updated(polish_average=0.9), level, None).average == 0.9
     with pytest.raises(ValueError, match="polish_lambda"):
         jg.ReconstructOptions(polish_lambda=-1.0)
     with pytest.raises(ValueError, match="polish_alpha"):
