@@ -115,8 +115,8 @@ def _options(args):
     opts = jg.ReconstructOptions.nicolet() if args.nicolet else jg.ReconstructOptions()
     opts = opts.fine() if args.fine else opts
     change = dict(steps_per_cycle=args.steps, one_jit=args.one_jit)
-    if args.cycles:
-        change["n_cycles"] = args.cycles
+    if args.cycles:  # the count given holds, also for fine textures
+        change.update(n_cycles=args.cycles, texture_cycles=0)
     if args.max_faces:
         if opts.remesh is not None:
             change.update(max_faces=args.max_faces, detail_faces=0)  # the budget given holds
@@ -418,7 +418,7 @@ def main(argv=None) -> int:
     r.add_argument("--edge-length", type=float, default=None, help="final target edge length in pixels (default 1.4)")
     r.add_argument("--views", type=int, default=24)
     r.add_argument("--res", type=int, default=128)
-    r.add_argument("--cycles", type=int, default=None, help="optimize/remesh cycles (default 4; 5 with --fine)")
+    r.add_argument("--cycles", type=int, default=None, help="optimize/remesh cycles (default 4; 5 with --fine and for photos of a fine texture)")
     r.add_argument("--steps", type=int, default=150)
     r.add_argument("--nicolet", action="store_true", help="the Nicolet et al. 2021 baseline (sphere, no remeshing)")
     r.add_argument("--fine", action="store_true", help="settings for thin structures a few pixels wide "

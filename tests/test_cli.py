@@ -63,6 +63,8 @@ def test_cli_settings_map_onto_the_nested_options():
     no_stereo = _options(argparse.Namespace(**{**base, "stereo": 0.0}))
     assert no_stereo.optimize.weights.stereo == 0.0 and no_stereo.stereo_carve == 0.0
     assert (opts.polish_cycles, opts.texture_polish) == (0, 2)  # fine textures only, by default
+    assert (opts.n_cycles, opts.texture_cycles) == (4, 5)  # 5 for fine textures, unless --cycles says
+    assert _options(argparse.Namespace(**{**base, "cycles": 4})).texture_cycles == 0
     assert _options(argparse.Namespace(**{**base, "polish_cycles": 3})).polish_cycles == 3
     assert _options(argparse.Namespace(**{**base, "polish_cycles": 0})).texture_polish == 0  # none, also for textures
     nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))

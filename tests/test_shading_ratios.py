@@ -138,6 +138,8 @@ def test_fine_textures_turn_the_term_on(scene):
         jg.ReconstructOptions(texture_photo=-1.0)
     with pytest.raises(ValueError, match="texture_polish"):
         jg.ReconstructOptions(texture_polish=-1)
+    with pytest.raises(ValueError, match="texture_cycles"):
+        jg.ReconstructOptions(texture_cycles=-1)
     with pytest.raises(ValueError, match="texture_adaptive"):
         jg.ReconstructOptions(texture_adaptive=1)
 
@@ -145,15 +147,15 @@ def test_fine_textures_turn_the_term_on(scene):
 def test_fine_textures_weigh_the_silhouettes_more(scene):
     """For photos of a fine texture the fit raises the silhouette weight to `texture_alpha`, lowers the
     photometric weight to `texture_photo`, turns shading ratios on, compares them unblurred
-    (`texture_blur`), closes with `texture_polish` polish cycles and remeshes curvature-adaptively
-    (`texture_adaptive`), each only where the caller left it
+    (`texture_blur`), closes with `texture_polish` polish cycles, runs `texture_cycles` cycles and
+    remeshes curvature-adaptively (`texture_adaptive`), each only where the caller left it
     at its default; smooth photos keep all, and so do cells the finest level fitted blurs (the share is
     measured on the images the fit sees)."""
     from jaxgenus.optim import pyramid_level
     from jaxgenus.pipeline._setup import FINE_TEXTURE, fine_texture, texture_share
 
     cams, photos, _ = scene
-    base, polish, adaptive = jg.ReconstructOptions(), [], []
+    base, polish, adaptive, cycles = jg.ReconstructOptions(), [], [], []
 
     def weights(name, options, factor=1):
         lines, level = [], photos[name] if isinstance(name, str) else name
@@ -162,6 +164,7 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
         w = fitted.optimize.weights
         polish.append(fitted.polish_cycles)
         adaptive.append(fitted.remesh.adaptive)
+        cycles.append(fitted.n_cycles)
         return w.alpha, w.shading_ratio, w.consistency_blur, w.photo, lines
 
     alpha, ratio, blur, photo, said = weights("cells", base)
@@ -169,16 +172,20 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
                                            base.texture_photo) == (4.0, 6.0, 0.0, 1.0)
     assert len(said) == 1 and all(s in said[0] for s in ("silhouette weight 4", "shading ratios on", "blur 0",
                                                          "photometric weight 1", "2 closing polish",
-                                                         "curvature-adaptive")), said
+                                                         "curvature-adaptive", "5 cycles")), said
     assert polish[-1] == base.texture_polish == 2 and base.polish_cycles == 0
     assert adaptive[-1] and base.texture_adaptive and not base.remesh.adaptive
+    assert cycles[-1] == base.texture_cycles == 5 and base.n_cycles == 4
     kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1, adaptive=True)
-    assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1  # the caller's kept
+    kept = kept.updated(n_cycles=3)
+    assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1 and cycles[-1] == 3  # the caller's
     off = base.updated(texture_alpha=0.0, texture_ratio=0.0, texture_blur=1.0, texture_photo=0.0, texture_polish=0,
-                       texture_adaptive=False)
+                       texture_adaptive=False, texture_cycles=0)
     assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
+    assert cycles[-1] == 4
     assert weights("cells", base.updated(consistency=0.0))[2] == 1.0 and polish[-1] == 0  # no term: no polish
     assert weights("constant", base) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
+    assert cycles[-1] == 4
     # the same cells at 4x the size (44 px): few pixels on an edge; fitted at 1/4 they are fine again
     big = jnp.repeat(jnp.repeat(photos["cells"], 4, axis=1), 4, axis=2)
     assert texture_share(big) < 0.5 * FINE_TEXTURE

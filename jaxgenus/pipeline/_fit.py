@@ -110,7 +110,10 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
     levels = fit_levels(setup, options, start.mesh)
-    options = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say)
+    fitted = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say)
+    if fitted.n_cycles != options.n_cycles:  # a fine texture's cycle count: the schedule laid out again
+        levels = fit_levels(setup, fitted, start.mesh)
+    options = fitted
     lengths = world_lengths(setup, options, levels)
     polish = polish_count(options, levels[-1])
     where = dict(n_cycles=options.n_cycles + polish, fit=index.fit, fits=index.fits)
