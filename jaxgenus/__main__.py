@@ -221,7 +221,10 @@ def _region(args, images, cams, say):
 def _plan_line(opts, targets) -> str:
     """Cycles, steps and the face budget (with the rise photos may get, `detail_faces`)."""
     more = targets == "photo" and opts.remesh is not None and opts.detail_faces > opts.face_budget
-    return (f"{opts.n_cycles} cycles x {opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
+    cycles = f"{opts.n_cycles} cycles"
+    if targets == "photo" and opts.texture_cycles > opts.n_cycles == type(opts).n_cycles:
+        cycles += f" ({opts.texture_cycles} for photos of a fine texture)"
+    return (f"{cycles} x {opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
             + (f" (photos that resolve more: up to {opts.detail_faces})" if more else ""))
 
 
