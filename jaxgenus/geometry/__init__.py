@@ -30,7 +30,7 @@ from jaxgenus.geometry._metrics import (
 )
 from jaxgenus.geometry._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus.geometry._primitives import genus_primitive
-from jaxgenus.geometry._reprojection import Reprojection, reprojection_psnr
+from jaxgenus.geometry._reprojection import Reprojection, UnseenFill, fill_unseen, reprojection_psnr, seen_counts
 from jaxgenus.geometry._subdivision import Subdivision, phong_subdivision
 from jaxgenus.geometry._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus.geometry._topology import (
@@ -68,6 +68,9 @@ __all__ = [
     "chamfer_distance",
     "Reprojection",
     "reprojection_psnr",
+    "UnseenFill",
+    "fill_unseen",
+    "seen_counts",
     "component_genera",
     "connected_components",
     "euler_characteristic",

@@ -9,6 +9,16 @@ predicted from the nearest views that hold it), and the training colours found t
 against the held-out photo, over the object's pixels, measures the geometry: a wrong
 surface sends each view's colours to the wrong place. No texture is fitted and no
 renderer of this library is used: rays are cast by trimesh (embree when installed).
+
+The same rays say which of a mesh's vertices the cameras see. `seen_counts` counts, per vertex,
+the cameras that hold it in their frame, face it and have no other part of the mesh in between;
+`fill_unseen` moves the vertices that no camera sees, though some hold them in frame (a slot behind a
+gable, the underside of an object on a table, a bulge the silhouettes left behind a wall), onto the
+membrane the seen surface spans around them: each such vertex at the mean of its neighbours (a
+harmonic map of the uniform graph Laplacian), the seen ones and those out of every frame fixed. No
+image says where that surface is; a cavity no camera looks into or a bulge behind the seen surface
+is the guess the images never checked, and a held-out view between the cameras sees the former as a
+crack and through the latter misses what the cameras did see.
 """
 
 from __future__ import annotations
@@ -16,11 +26,14 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.linalg as sparse_linalg
+from scipy.sparse.csgraph import connected_components
 import trimesh
 
 from jaxgenus.geometry._cameras import Cameras
 
-__all__ = ["Reprojection", "reprojection_psnr"]
+__all__ = ["Reprojection", "UnseenFill", "fill_unseen", "reprojection_psnr", "seen_counts"]
 
 
 class Reprojection(NamedTuple):
@@ -203,3 +216,86 @@ def _unoccluded(rays, points: np.ndarray, directions: np.ndarray, dist: np.ndarr
     blocked = np.linalg.norm(loc - start[ray], axis=1) < dist[ray] - 2 * tol
     free[ray[blocked]] = False
     return free
+
+
+def seen_counts(mesh, cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
+    """How many of `cameras` see each vertex of `mesh`, and how many hold it in their frame.
+
+    A camera sees a vertex when the vertex projects inside its frame, in front of it, its
+    (area-weighted) normal faces the camera and the segment to the camera, started a hair off the
+    surface, meets no other part of the mesh.
+
+    Returns:
+        `(seen (V,), in_frame (V,))` int counts over the cameras.
+    """
+    tm = _trimesh(mesh)
+    shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
+    tm = trimesh.Trimesh(tm.vertices - shift, tm.faces, process=False)
+    rays, tol = _intersector(tm), 1e-3 * float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
+    r, _, focal, centre_px, centres = _camera_arrays(cameras)
+    centres = centres - shift
+    v, normals = np.asarray(tm.vertices), np.asarray(tm.vertex_normals)
+    seen, in_frame = np.zeros(len(v), np.int64), np.zeros(len(v), np.int64)
+    for k in range(len(r)):
+        x = (v - centres[k]) @ r[k].T
+        z = np.maximum(x[:, 2], 1e-12)
+        u, w = focal[k, 0] * x[:, 0] / z + centre_px[k, 0], focal[k, 1] * x[:, 1] / z + centre_px[k, 1]
+        inside = (x[:, 2] > 0) & (u >= 0) & (u < cameras.width) & (w >= 0) & (w < cameras.height)
+        in_frame += inside
+        to_cam = centres[k] - v
+        dist = np.linalg.norm(to_cam, axis=1)
+        to_cam /= np.maximum(dist, 1e-30)[:, None]
+        idx = np.flatnonzero(inside & (np.einsum("ni,ni->n", to_cam, normals) > 0))
+        free = _unoccluded(rays, v[idx] + normals[idx] * tol, to_cam[idx], dist[idx], tol)
+        seen[idx[free]] += 1
+    return seen, in_frame
+
+
+class UnseenFill(NamedTuple):
+    """What `fill_unseen` returns.
+
+    Attributes:
+        vertices: `(V, 3)` the mesh's vertices with the unseen ones moved (a new array).
+        moved: `(V,)` bool, the vertices it moved (seen by no camera, in some camera's frame).
+        distance: `(V,)` how far each vertex moved (the mesh's units).
+    """
+
+    vertices: np.ndarray
+    moved: np.ndarray
+    distance: np.ndarray
+
+
+def fill_unseen(mesh, cameras: Cameras) -> UnseenFill:
+    """The vertices of `mesh` that no camera sees (but some holds in frame) moved onto the membrane
+    the seen surface spans around them (module doc); the faces and the genus are kept.
+
+    Args:
+        mesh: a `Mesh`, a `trimesh.Trimesh` or `(vertices, faces)`, in the cameras' frame.
+        cameras: the `Cameras` whose views count as seeing.
+
+    Returns:
+        An `UnseenFill`; the input is not modified. A group of unseen vertices with no seen or
+        out-of-frame neighbour anywhere around it stays where it is.
+    """
+    tm = _trimesh(mesh)
+    v, f = np.asarray(tm.vertices, np.float64), np.asarray(tm.faces, np.int64)
+    seen, in_frame = seen_counts((v, f), cameras)
+    moved = (seen == 0) & (in_frame > 0)
+    out = v.copy()
+    if moved.any() and not moved.all():
+        e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+        adj = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v), len(v))).tocsr()
+        adj = ((adj + adj.T) > 0).astype(np.float64)
+        lap = sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj
+        free = np.flatnonzero(moved)
+        n_groups, group = connected_components(adj[free][:, free], directed=False)
+        bounded = np.zeros(n_groups, bool)
+        bounded[group[np.asarray(adj[free][:, np.flatnonzero(~moved)].sum(axis=1)).ravel() > 0]] = True
+        moved[free[~bounded[group]]] = False  # an island with nothing seen around it stays put
+        free, fixed = np.flatnonzero(moved), np.flatnonzero(~moved)
+        if len(free):
+            system = lap[free][:, free].tocsc()
+            out[free] = sparse_linalg.splu(system).solve(-(lap[free][:, fixed] @ v[fixed]))
+        if not np.isfinite(out).all():
+            out, moved = v.copy(), np.zeros_like(moved)
+    return UnseenFill(out, moved, np.linalg.norm(out - v, axis=1))

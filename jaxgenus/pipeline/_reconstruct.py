@@ -25,7 +25,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from jaxgenus.geometry import Cameras, phong_subdivision
+from jaxgenus.geometry import Cameras, Mesh, fill_unseen, phong_subdivision
 from jaxgenus.pipeline._fit import FitIndex, fit
 from jaxgenus.pipeline._history import GenusEstimate, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -128,7 +128,24 @@ def reconstruct(
     rec = fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
     if n_refits and rec.genus_ok:
         rec = _refits(rec, setup, options, n_refits, key, callback, say)
+    if setup.options.fill_unseen and setup.targets.kind == "photo":
+        rec = _filled(rec, cams, say)
     return _subdivided(rec, say) if setup.options.subdivide else rec
+
+
+def _filled(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` with the surface no camera sees on the membrane around it (`ReconstructOptions.fill_unseen`)."""
+    v, f = rec.mesh.to_numpy()
+    fill = fill_unseen((v, f), cams)
+    n = int(fill.moved.sum())
+    if n == 0:
+        say("unseen surface: every vertex in some camera's frame is seen by one (ReconstructOptions.fill_unseen)")
+        return rec
+    scale = float(np.linalg.norm(np.ptp(v, axis=0)))
+    say(f"unseen surface: {n} of {len(v)} vertices ({100 * n / len(v):.0f}%) no camera sees moved onto the "
+        f"membrane the seen surface spans, median {np.median(fill.distance[fill.moved]) / scale:.3f} and at most "
+        f"{fill.distance.max() / scale:.3f} of the mesh's diagonal (ReconstructOptions.fill_unseen=False: off)")
+    return dataclasses.replace(rec, mesh=Mesh.from_numpy(fill.vertices.astype(v.dtype), f))
 
 
 def _subdivided(rec: Reconstruction, say: Callable[[str], None]) -> Reconstruction:
