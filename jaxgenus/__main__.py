@@ -223,7 +223,7 @@ def _plan_line(opts, targets) -> str:
     more = targets == "photo" and opts.remesh is not None and opts.detail_faces > opts.face_budget
     cycles = f"{opts.n_cycles} cycles"
     if targets == "photo" and opts.texture_cycles > opts.n_cycles == type(opts).n_cycles:
-        cycles += f" ({opts.texture_cycles} for photos of a fine texture)"
+        cycles += f" ({opts.texture_cycles} for photos of a fine texture that resolve under 4x the faces)"
     return (f"{cycles} x {opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
             + (f" (photos that resolve more: up to {opts.detail_faces})" if more else ""))
 

@@ -66,7 +66,7 @@ def test_cli_settings_map_onto_the_nested_options():
     assert (opts.n_cycles, opts.texture_cycles) == (4, 5)  # 5 for fine textures, unless --cycles says
     assert _options(argparse.Namespace(**{**base, "cycles": 4})).texture_cycles == 0
     from jaxgenus.__main__ import _plan_line
-    assert _plan_line(opts, "photo").startswith("4 cycles (5 for photos of a fine texture) x 150 steps")
+    assert _plan_line(opts, "photo").startswith("4 cycles (5 for photos of a fine texture that resolve under 4x the faces) x 150 steps")
     assert _plan_line(opts, "normals").startswith("4 cycles x 150")
     assert _plan_line(_options(argparse.Namespace(**{**base, "cycles": 4})), "photo").startswith("4 cycles x 150")
     assert _options(argparse.Namespace(**{**base, "polish_cycles": 3})).polish_cycles == 3

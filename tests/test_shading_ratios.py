@@ -176,6 +176,10 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     assert polish[-1] == base.texture_polish == 2 and base.polish_cycles == 0
     assert adaptive[-1] and base.texture_adaptive and not base.remesh.adaptive
     assert cycles[-1] == base.texture_cycles == 5 and base.n_cycles == 4
+    # photos that resolve 4x the budget's faces or more (a DTU-class capture) keep the cycles as set
+    detailed = fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget)
+    assert detailed.n_cycles == 4 and detailed.polish_cycles == base.texture_polish
+    assert fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget - 1).n_cycles == 5
     kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1, adaptive=True)
     kept = kept.updated(n_cycles=3)
     assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1 and cycles[-1] == 3  # the caller's

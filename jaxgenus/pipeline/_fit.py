@@ -110,7 +110,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
     levels = fit_levels(setup, options, start.mesh)
-    fitted = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say)
+    fitted = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say, setup.resolved)
     if fitted.n_cycles != options.n_cycles:  # a fine texture's cycle count: the schedule laid out again
         levels = fit_levels(setup, fitted, start.mesh)
     options = fitted

@@ -203,15 +203,16 @@ def texture_share(photos) -> float:
     return marked / max(inside, 1)
 
 
-def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, say: Callable[[str], None]
-                 ) -> ReconstructOptions:
+def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, say: Callable[[str], None],
+                 resolved: int = 0) -> ReconstructOptions:
     """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
     edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets on one device, as
     a process of a split run holds only its own views): `shading_ratio` at `texture_ratio` where it is 0,
     the silhouette weight `alpha` at `texture_alpha`, the photometric weight `photo` at `texture_photo`
     and `consistency_blur` at `texture_blur` where they are at their defaults, and `polish_cycles` at
-    `texture_polish` where it is 0, `n_cycles` at `texture_cycles` where it is at its default, and the
-    remeshes curvature-adaptive (`texture_adaptive`). The share is measured on the images the fit sees:
+    `texture_polish` where it is 0, `n_cycles` at `texture_cycles` where it is at its default and the
+    photos resolve fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not
+    counted), and the remeshes curvature-adaptive (`texture_adaptive`). The share is measured on the images the fit sees:
     a texture the finest level blurs away is no fine texture."""
     if kind != "photo" or views_layout(n_views, options.devices)[0] is not None:
         return options
@@ -232,7 +233,8 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     if weights.consistency > 0 and options.texture_polish > 0 and options.polish_cycles == 0:
         change["polish_cycles"] = options.texture_polish
         said.append(f"{options.texture_polish} closing polish cycles (texture_polish=0: none)")
-    if options.texture_cycles > options.n_cycles == ReconstructOptions.n_cycles:
+    if (options.texture_cycles > options.n_cycles == ReconstructOptions.n_cycles
+            and resolved < 4 * options.face_budget):
         change["n_cycles"] = options.texture_cycles
         said.append(f"{options.texture_cycles} cycles (texture_cycles=0 / --cycles N: as set)")
     if options.texture_adaptive and options.remesh is not None and not options.remesh.adaptive:
