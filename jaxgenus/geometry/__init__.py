@@ -30,7 +30,8 @@ from jaxgenus.geometry._metrics import (
 )
 from jaxgenus.geometry._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus.geometry._primitives import genus_primitive
-from jaxgenus.geometry._reprojection import Reprojection, UnseenFill, fill_unseen, reprojection_psnr, seen_counts
+from jaxgenus.geometry._reprojection import (OutlineFit, Reprojection, UnseenFill, fill_unseen, fit_outline,
+                                             reprojection_psnr, seen_counts)
 from jaxgenus.geometry._subdivision import Subdivision, phong_subdivision
 from jaxgenus.geometry._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
 from jaxgenus.geometry._topology import (
@@ -70,6 +71,8 @@ __all__ = [
     "reprojection_psnr",
     "UnseenFill",
     "fill_unseen",
+    "OutlineFit",
+    "fit_outline",
     "seen_counts",
     "component_genera",
     "connected_components",

@@ -19,6 +19,13 @@ harmonic map of the uniform graph Laplacian), the seen ones and those out of eve
 image says where that surface is; a cavity no camera looks into or a bulge behind the seen surface
 is the guess the images never checked, and a held-out view between the cameras sees the former as a
 crack and through the latter misses what the cameras did see.
+
+`fit_outline` moves the outline of a mesh fitted to coarser copies of its masks onto the masks at
+their own size: per view, the vertices on the mesh's outer outline (their normal across the view
+ray, and a ray a tenth of a pixel outward past them misses the mesh) move across the ray by the
+signed distance of their projection to the mask's edge; each vertex takes the mean of the moves its
+views ask, in a few damped rounds. Only outline vertices move: a move handed on to neighbours that no
+view checks is never taken back, and rounds of them drift.
 """
 
 from __future__ import annotations
@@ -28,12 +35,14 @@ from typing import NamedTuple
 import numpy as np
 import scipy.sparse as sparse
 import scipy.sparse.linalg as sparse_linalg
+from scipy import ndimage
 from scipy.sparse.csgraph import connected_components
 import trimesh
 
 from jaxgenus.geometry._cameras import Cameras
 
-__all__ = ["Reprojection", "UnseenFill", "fill_unseen", "reprojection_psnr", "seen_counts"]
+__all__ = ["OutlineFit", "Reprojection", "UnseenFill", "fill_unseen", "fit_outline", "reprojection_psnr",
+           "seen_counts"]
 
 
 class Reprojection(NamedTuple):
@@ -299,3 +308,110 @@ def fill_unseen(mesh, cameras: Cameras) -> UnseenFill:
         if not np.isfinite(out).all():
             out, moved = v.copy(), np.zeros_like(moved)
     return UnseenFill(out, moved, np.linalg.norm(out - v, axis=1))
+
+
+class OutlineFit(NamedTuple):
+    """What `fit_outline` returns.
+
+    Attributes:
+        vertices: `(V, 3)` the mesh's vertices with the outline moved (a new array).
+        moved: `(V,)` bool, the vertices some view found on its outline.
+        distance: `(V,)` how far each vertex moved (the mesh's units).
+        before, after: the mean distance in pixels between the outline vertices' projections and
+            the masks' edges, before and after (NaN where no view found an outline).
+    """
+
+    vertices: np.ndarray
+    moved: np.ndarray
+    distance: np.ndarray
+    before: float
+    after: float
+
+
+def _signed_edges(masks: np.ndarray) -> list[np.ndarray]:
+    """Per mask, the signed distance (px, > 0 outside) of each pixel centre to its edge; the frame's
+    border is no edge (an object cut by the frame runs on past it)."""
+    out = []
+    for m in masks > 0.5:
+        padded = np.pad(m, 4, mode="edge")
+        d = ndimage.distance_transform_edt(~padded) - ndimage.distance_transform_edt(padded)
+        out.append(np.clip(d[4:-4, 4:-4], -8, 8).astype(np.float32))
+    return out
+
+
+def _outline_moves(v, faces, cams_arrays, size, edges, band: float, probe_px: float):
+    """One round of `fit_outline`: per vertex, the summed move its views ask of it, how many asked,
+    and the mean |signed distance| (px) of the outline vertices found."""
+    r, _, focal, centre_px, centres = cams_arrays
+    h, w = size
+    tm = trimesh.Trimesh(v, faces, process=False)
+    normals, rays = np.asarray(tm.vertex_normals), _intersector(tm)
+    acc, count, offsets = np.zeros_like(v), np.zeros(len(v)), [np.zeros(0)]
+    for k in range(len(r)):
+        x = (v - centres[k]) @ r[k].T
+        z = np.maximum(x[:, 2], 1e-12)
+        u, y = focal[k, 0] * x[:, 0] / z + centre_px[k, 0], focal[k, 1] * x[:, 1] / z + centre_px[k, 1]
+        ray = v - centres[k]
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        across = np.einsum("ni,ni->n", normals, ray)
+        idx = np.flatnonzero((x[:, 2] > 0) & (u >= 3) & (u < w - 3) & (y >= 3) & (y < h - 3) & (np.abs(across) < 0.3))
+        s = ndimage.map_coordinates(edges[k], [y[idx] - 0.5, u[idx] - 0.5], order=1).astype(np.float64)
+        near = np.abs(s) < band
+        idx, s = idx[near], s[near]
+        out = normals[idx] - across[idx, None] * ray[idx]
+        out /= np.maximum(np.linalg.norm(out, axis=1, keepdims=True), 1e-12)
+        probe = v[idx] + out * (probe_px * z[idx] / focal[k, 0])[:, None] - centres[k]
+        probe /= np.linalg.norm(probe, axis=1, keepdims=True)
+        outer = ~rays.intersects_any(np.broadcast_to(centres[k], probe.shape).copy(), probe)
+        idx, s, out = idx[outer], s[outer], out[outer]
+        acc[idx] += (-s * z[idx] / focal[k, 0])[:, None] * out
+        count[idx] += 1
+        offsets.append(np.abs(s))
+    offsets = np.concatenate(offsets)
+    return acc, count, float(np.mean(offsets)) if len(offsets) else float("nan")
+
+
+def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 6, band: float = 3.0, step: float = 0.7,
+                probe_px: float = 0.1) -> OutlineFit:
+    """The outline of `mesh` moved onto `masks` at their own size (module doc).
+
+    Args:
+        mesh: a `Mesh`, a `trimesh.Trimesh` or `(vertices, faces)`, in the cameras' frame.
+        cameras: the `Cameras` of `masks` (pinhole, their size the masks').
+        masks: `(N, H, W)` object masks (> 0.5: object), one per camera.
+        rounds: rounds of moves; band: only outline vertices within `band` pixels of a mask's
+            edge move (farther ones are no outline the mask shows: a thin part, an occluding
+            contour); step: the share of the mean move applied per round; probe_px: how far
+            outward (pixels) a ray past a vertex must miss the mesh for the vertex to be on the outline.
+
+    Returns:
+        An `OutlineFit`; the input is not modified. The faces (and so the genus) are kept.
+    """
+    tm = _trimesh(mesh)
+    masks = np.asarray(masks)
+    if masks.ndim != 3 or len(masks) != len(cameras) or masks.shape[1:] != (cameras.height, cameras.width):
+        raise ValueError(f"masks: expected ({len(cameras)}, {cameras.height}, {cameras.width}) for the cameras, "
+                         f"got {masks.shape}")
+    masks = masks.astype(np.float32)
+    if not np.isfinite(masks).all():
+        raise ValueError("masks: must be finite")
+    if not (isinstance(rounds, int) and rounds >= 0 and band > 0 and 0 < step <= 1 and probe_px > 0):
+        raise ValueError(f"rounds >= 0, band > 0, 0 < step <= 1 and probe_px > 0 needed, got {rounds}, {band}, "
+                         f"{step}, {probe_px}")
+    shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
+    v0 = np.asarray(tm.vertices, np.float64) - shift
+    faces = np.asarray(tm.faces, np.int64)
+    r, t, focal, centre_px, centres = _camera_arrays(cameras)
+    arrays = (r, t, focal, centre_px, centres - shift)
+    edges, size = _signed_edges(masks), (cameras.height, cameras.width)
+    v, moved, before = v0.copy(), np.zeros(len(v0), bool), float("nan")
+    for k in range(rounds + 1):
+        acc, count, offset = _outline_moves(v, faces, arrays, size, edges, band, probe_px)
+        before = offset if k == 0 else before
+        if k == rounds:
+            break
+        moved |= count > 0
+        v = v + step * acc / np.maximum(count, 1)[:, None]
+    if not np.isfinite(v).all():
+        v, moved, offset = v0.copy(), np.zeros_like(moved), before
+    return OutlineFit(v + shift, moved, np.linalg.norm(v - v0, axis=1), before, offset)

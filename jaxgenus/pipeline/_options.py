@@ -208,6 +208,10 @@ class ReconstructOptions:
             docs/photometric.md, "The surface no camera sees"). The photos never checked that
             surface; as fitted it shows held-out views cracks and hides from them what the
             cameras saw (DTU scan24 at 1600x1200, seed 0: 24.35 -> 24.45 dB held-out). False: off.
+        fit_outline: when the finest level fitted is coarser than the images, the result's outline
+            moves onto the masks at their own size after the subdivision
+            (`jaxgenus.geometry.fit_outline`; docs/photometric.md, "The outline at the masks' own
+            size"): a fit at 1/4 leaves it about a pixel off at full size. False: off.
     """
 
     n_cycles: int = 4
@@ -249,6 +253,7 @@ class ReconstructOptions:
     polish_average: float = 0.99
     subdivide: bool = True
     fill_unseen: bool = True
+    fit_outline: bool = True
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
@@ -271,7 +276,7 @@ class ReconstructOptions:
         _number("polish_average", self.polish_average, 0.0, 0.999)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur", "texture_faces"):
             _number(name, getattr(self, name), 0.0, 1.0)
-        for name in ("subdivide", "fill_unseen"):
+        for name in ("subdivide", "fill_unseen", "fit_outline"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"options.{name} must be True or False, got {getattr(self, name)!r}")
         if not isinstance(self.texture_adaptive, bool):

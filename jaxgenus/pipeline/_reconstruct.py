@@ -25,7 +25,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from jaxgenus.geometry import Cameras, Mesh, fill_unseen, phong_subdivision
+from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, phong_subdivision
 from jaxgenus.pipeline._fit import FitIndex, fit
 from jaxgenus.pipeline._history import GenusEstimate, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -120,7 +120,8 @@ def reconstruct(
 
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
-                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False),
+                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False,
+                                                       fit_outline=False),
                            key=key, views=views, region=region)
 
     start = first_start(setup, fit_genus, say)
@@ -130,7 +131,8 @@ def reconstruct(
         rec = _refits(rec, setup, options, n_refits, key, callback, say)
     if setup.options.fill_unseen and setup.targets.kind == "photo":
         rec = _filled(rec, cams, say)
-    return _subdivided(rec, say) if setup.options.subdivide else rec
+    rec = _subdivided(rec, say) if setup.options.subdivide else rec
+    return _outlined(rec, setup, say) if setup.options.fit_outline else rec
 
 
 def _filled(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
@@ -154,6 +156,24 @@ def _subdivided(rec: Reconstruction, say: Callable[[str], None]) -> Reconstructi
     say(f"subdivided: {int(rec.mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, the new vertices on the smooth "
         "surface through the fitted ones (Phong; ReconstructOptions.subdivide=False: off)")
     return dataclasses.replace(rec, mesh=sub.mesh, albedo=sub.values)
+
+
+def _outlined(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` with its outline on the masks at their own size (`ReconstructOptions.fit_outline`), where
+    the finest level fitted was coarser than the images."""
+    finest = min((r["factor"] for r in rec.history.resolution), default=1)
+    if finest <= 1:
+        return rec
+    if setup.held is not None:
+        say("outline: not moved onto the masks' own size with the views split over processes")
+        return rec
+    v, f = rec.mesh.to_numpy()
+    cams = setup.world_cams
+    out = fit_outline((v, f), cams, setup.targets.alpha)
+    say(f"outline: {int(out.moved.sum())} vertices moved onto the masks at {cams.width}x{cams.height} (fitted at "
+        f"1/{finest}), {out.before:.2f} -> {out.after:.2f} px off their edges on average "
+        "(ReconstructOptions.fit_outline=False: off)")
+    return dataclasses.replace(rec, mesh=Mesh.from_numpy(out.vertices.astype(v.dtype), f))
 
 
 def _start_line(start: Start, genus: int, seconds: float) -> str:
