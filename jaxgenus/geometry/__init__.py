@@ -16,8 +16,7 @@ from jaxgenus.geometry._cameras import (
     sphere_cameras,
 )
 from jaxgenus.geometry._energies import bilaplacian_energy, inversion_penalty, inverted_face_count
-from jaxgenus.geometry._io import load_mesh, save_mesh
-from jaxgenus.geometry._mesh import Mesh, capacity_bucket
+from jaxgenus.geometry._mesh import Mesh, capacity_bucket, load_mesh, save_mesh
 from jaxgenus.geometry._metrics import (
     ChamferResult,
     ICPResult,
@@ -30,6 +29,7 @@ from jaxgenus.geometry._metrics import (
 )
 from jaxgenus.geometry._operators import UniformLaplacian, face_normals, uniform_laplacian, vertex_normals
 from jaxgenus.geometry._primitives import genus_primitive
+from jaxgenus.geometry._photo_depth import PhotoDepthFit, fit_photo_depth
 from jaxgenus.geometry._reprojection import (OutlineFit, Reprojection, UnseenFill, fill_unseen, fit_outline,
                                              reprojection_psnr, seen_counts)
 from jaxgenus.geometry._subdivision import Subdivision, phong_subdivision
@@ -73,6 +73,8 @@ __all__ = [
     "fill_unseen",
     "OutlineFit",
     "fit_outline",
+    "PhotoDepthFit",
+    "fit_photo_depth",
     "seen_counts",
     "component_genera",
     "connected_components",

@@ -6,11 +6,14 @@ Rows past the live counts are padding: padded vertices are zero and padded faces
 are `(0, 0, 0)` -- a degenerate face on vertex 0 with zero area. Every function
 in jaxgenus masks padding with `vertex_mask` / `face_mask`, so padding never
 contributes to a render, an energy or a topology count.
+
+`load_mesh` and `save_mesh` read and write meshes (OBJ, PLY, and whatever else trimesh reads).
 """
 
 from __future__ import annotations
 
 import math
+import os
 
 import equinox as eqx
 import jax
@@ -18,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-__all__ = ["Mesh", "capacity_bucket"]
+__all__ = ["Mesh", "capacity_bucket", "load_mesh", "save_mesh"]
 
 
 def capacity_bucket(n_faces: int, *, minimum: int = 256) -> tuple[int, int]:
@@ -138,3 +141,41 @@ class Mesh(eqx.Module):
         """Return a copy of the live part in new buffers of `capacity` (see `from_numpy`)."""
         v, f = self.to_numpy()
         return Mesh.from_numpy(v, f, capacity=capacity)
+
+
+def load_mesh(path, *, capacity=None) -> Mesh:
+    """Load a triangle mesh from `path` (OBJ, PLY, ...) exactly as stored.
+
+    Vertices are not merged or reordered (so topology is what the file says);
+    polygons are triangulated by trimesh. Raises `ValueError` for files without faces.
+    """
+    import trimesh
+
+    path = os.fspath(path)
+    if not os.path.isfile(path):
+        raise ValueError(f"path: no such file: {path!r}")
+    loaded = trimesh.load(path, process=False, force="mesh")
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise ValueError(f"path: {path!r} holds no triangle mesh")
+    return Mesh.from_numpy(np.asarray(loaded.vertices), np.asarray(loaded.faces), capacity=capacity)
+
+
+def save_mesh(mesh: Mesh, path, *, vertex_colors=None) -> None:
+    """Write the live part of `mesh` to `path`; the format follows the extension (.obj, .ply, ...).
+
+    `vertex_colors`: optional `(V, 3)` RGB in [0, 1] per live vertex (e.g.
+    `Reconstruction.albedo`), clipped to [0, 1] and written as 8-bit vertex colours
+    (PLY: `red green blue` vertex properties; OBJ: `v x y z r g b`).
+    """
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower().lstrip(".")
+    if not ext:
+        raise ValueError(f"path: cannot tell the format of {path!r} (no extension)")
+    tm = mesh.to_trimesh()
+    if vertex_colors is not None:
+        c = np.asarray(vertex_colors, np.float64)
+        if c.shape != (len(tm.vertices), 3) or not np.all(np.isfinite(c)):
+            raise ValueError(f"vertex_colors must be finite with shape ({len(tm.vertices)}, 3), got {c.shape}")
+        rgba = np.concatenate([np.round(np.clip(c, 0.0, 1.0) * 255.0), np.full((len(c), 1), 255.0)], axis=1)
+        tm.visual.vertex_colors = rgba.astype(np.uint8)
+    tm.export(path, file_type=ext)

@@ -67,7 +67,7 @@ class Reprojection(NamedTuple):
         return float(np.mean(self.psnr))
 
 
-def _trimesh(mesh) -> trimesh.Trimesh:
+def as_trimesh(mesh) -> trimesh.Trimesh:
     if isinstance(mesh, trimesh.Trimesh):
         v, f = mesh.vertices, mesh.faces
     elif hasattr(mesh, "to_numpy"):
@@ -82,7 +82,7 @@ def _trimesh(mesh) -> trimesh.Trimesh:
     return trimesh.Trimesh(v, f, process=False)
 
 
-def _intersector(tm: trimesh.Trimesh):
+def ray_intersector(tm: trimesh.Trimesh):
     try:
         from trimesh.ray.ray_pyembree import RayMeshIntersector
     except ImportError:  # pragma: no cover - embreex ships on x86_64
@@ -90,7 +90,7 @@ def _intersector(tm: trimesh.Trimesh):
     return RayMeshIntersector(tm)
 
 
-def _photos(x, name: str, n: int | None = None) -> np.ndarray:
+def photo_array(x, name: str, n: int | None = None) -> np.ndarray:
     x = np.asarray(x)
     if x.ndim != 4 or x.shape[-1] not in (3, 4):
         raise ValueError(f"{name}: expected (N, H, W, 3 or 4) photos, got shape {x.shape}")
@@ -102,7 +102,7 @@ def _photos(x, name: str, n: int | None = None) -> np.ndarray:
     return x[..., :3]
 
 
-def _camera_arrays(cams: Cameras):
+def camera_arrays(cams: Cameras):
     r = np.asarray(cams.rotation, np.float64)
     t = np.asarray(cams.translation, np.float64)
     centres = -np.einsum("nji,nj->ni", r, t)
@@ -142,8 +142,8 @@ def reprojection_psnr(mesh, photos, cameras: Cameras, held_photos, held_cameras:
         downsample: evaluate at one pixel per `downsample x downsample` block (block means
             of the held-out photo and mask; the training photos are sampled at full size).
     """
-    src = _photos(photos, "photos", len(cameras))
-    held = _photos(held_photos, "held_photos", len(held_cameras))
+    src = photo_array(photos, "photos", len(cameras))
+    held = photo_array(held_photos, "held_photos", len(held_cameras))
     if held_masks is not None:
         held_masks = np.asarray(held_masks, np.float32)
         if held_masks.shape != held.shape[:3]:
@@ -153,12 +153,12 @@ def reprojection_psnr(mesh, photos, cameras: Cameras, held_photos, held_cameras:
         raise ValueError("photos/held_photos: image sizes differ from their cameras' (height, width)")
     if not (isinstance(neighbours, int) and neighbours >= 1) or not (isinstance(downsample, int) and downsample >= 1):
         raise ValueError(f"neighbours and downsample must be ints >= 1, got {neighbours}, {downsample}")
-    tm = _trimesh(mesh)
+    tm = as_trimesh(mesh)
     shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
     tm = trimesh.Trimesh(tm.vertices - shift, tm.faces, process=False)
-    rays, tol = _intersector(tm), 1e-3 * float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
-    r_s, t_s, f_s, c_s, centre_s = _camera_arrays(cameras)
-    r_h, _, f_h, c_h, centre_h = _camera_arrays(held_cameras)
+    rays, tol = ray_intersector(tm), 1e-3 * float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
+    r_s, t_s, f_s, c_s, centre_s = camera_arrays(cameras)
+    r_h, _, f_h, c_h, centre_h = camera_arrays(held_cameras)
     centre_s, centre_h = centre_s - shift, centre_h - shift
     t_s = -np.einsum("nij,nj->ni", r_s, centre_s)  # translations in the shifted frame
     out = []
@@ -190,7 +190,7 @@ def reprojection_psnr(mesh, photos, cameras: Cameras, held_photos, held_cameras:
             to_cam = centre_s[s] - p
             dist = np.linalg.norm(to_cam, axis=1)
             seen = inside.copy()
-            seen[inside] = _unoccluded(rays, p[inside], to_cam[inside] / dist[inside, None], dist[inside], tol)
+            seen[inside] = unoccluded(rays, p[inside], to_cam[inside] / dist[inside, None], dist[inside], tol)
             cos = np.einsum("ni,ni->n", to_cam / dist[:, None], _unit(centre_h[m] - p))
             wgt = 1.0 / (np.arccos(np.clip(cos[seen], -1, 1)) + 1e-2)
             colour[idx[seen]] += wgt[:, None] * _bilinear(src[s], u[seen], v[seen])
@@ -215,7 +215,7 @@ def _unit(x: np.ndarray) -> np.ndarray:
     return x / np.linalg.norm(x, axis=-1, keepdims=True)
 
 
-def _unoccluded(rays, points: np.ndarray, directions: np.ndarray, dist: np.ndarray, tol: float) -> np.ndarray:
+def unoccluded(rays, points: np.ndarray, directions: np.ndarray, dist: np.ndarray, tol: float) -> np.ndarray:
     """Whether the segment from each point (nudged off its surface) to its camera is free of the mesh."""
     if len(points) == 0:
         return np.zeros(0, bool)
@@ -225,6 +225,35 @@ def _unoccluded(rays, points: np.ndarray, directions: np.ndarray, dist: np.ndarr
     blocked = np.linalg.norm(loc - start[ray], axis=1) < dist[ray] - 2 * tol
     free[ray[blocked]] = False
     return free
+
+
+def facing_cosines(tm: trimesh.Trimesh, rays, tol: float, arrays, size: tuple[int, int], *,
+                   margin: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Per vertex of `tm` and camera, the cosine between the vertex's (area-weighted) normal and the
+    direction to the camera where the camera sees it (inside its frame by `margin` pixels, in front,
+    facing it, the segment to it free of the mesh), else -1; and how many cameras hold it in frame.
+
+    `arrays` is `camera_arrays` of the cameras (their centres in `tm`'s frame), `size` `(H, W)`.
+    Returns `(cosines (V, N) float32, in_frame (V,) int)`.
+    """
+    r, _, focal, centre_px, centres = arrays
+    h, w = size
+    v, normals = np.asarray(tm.vertices), np.asarray(tm.vertex_normals)
+    cosines, in_frame = np.full((len(v), len(r)), -1.0, np.float32), np.zeros(len(v), np.int64)
+    for k in range(len(r)):
+        x = (v - centres[k]) @ r[k].T
+        z = np.maximum(x[:, 2], 1e-12)
+        u, y = focal[k, 0] * x[:, 0] / z + centre_px[k, 0], focal[k, 1] * x[:, 1] / z + centre_px[k, 1]
+        inside = (x[:, 2] > 0) & (u >= margin) & (u < w - margin) & (y >= margin) & (y < h - margin)
+        in_frame += inside
+        to_cam = centres[k] - v
+        dist = np.linalg.norm(to_cam, axis=1)
+        to_cam /= np.maximum(dist, 1e-30)[:, None]
+        cos = np.einsum("ni,ni->n", to_cam, normals)
+        idx = np.flatnonzero(inside & (cos > 0))
+        free = unoccluded(rays, v[idx] + normals[idx] * tol, to_cam[idx], dist[idx], tol)
+        cosines[idx[free], k] = cos[idx[free]]
+    return cosines, in_frame
 
 
 def seen_counts(mesh, cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
@@ -237,27 +266,14 @@ def seen_counts(mesh, cameras: Cameras) -> tuple[np.ndarray, np.ndarray]:
     Returns:
         `(seen (V,), in_frame (V,))` int counts over the cameras.
     """
-    tm = _trimesh(mesh)
+    tm = as_trimesh(mesh)
     shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
     tm = trimesh.Trimesh(tm.vertices - shift, tm.faces, process=False)
-    rays, tol = _intersector(tm), 1e-3 * float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
-    r, _, focal, centre_px, centres = _camera_arrays(cameras)
-    centres = centres - shift
-    v, normals = np.asarray(tm.vertices), np.asarray(tm.vertex_normals)
-    seen, in_frame = np.zeros(len(v), np.int64), np.zeros(len(v), np.int64)
-    for k in range(len(r)):
-        x = (v - centres[k]) @ r[k].T
-        z = np.maximum(x[:, 2], 1e-12)
-        u, w = focal[k, 0] * x[:, 0] / z + centre_px[k, 0], focal[k, 1] * x[:, 1] / z + centre_px[k, 1]
-        inside = (x[:, 2] > 0) & (u >= 0) & (u < cameras.width) & (w >= 0) & (w < cameras.height)
-        in_frame += inside
-        to_cam = centres[k] - v
-        dist = np.linalg.norm(to_cam, axis=1)
-        to_cam /= np.maximum(dist, 1e-30)[:, None]
-        idx = np.flatnonzero(inside & (np.einsum("ni,ni->n", to_cam, normals) > 0))
-        free = _unoccluded(rays, v[idx] + normals[idx] * tol, to_cam[idx], dist[idx], tol)
-        seen[idx[free]] += 1
-    return seen, in_frame
+    rays, tol = ray_intersector(tm), 1e-3 * float(np.linalg.norm(np.ptp(tm.vertices, axis=0)))
+    r, t, focal, centre_px, centres = camera_arrays(cameras)
+    cosines, in_frame = facing_cosines(tm, rays, tol, (r, t, focal, centre_px, centres - shift),
+                                       (cameras.height, cameras.width))
+    return np.sum(cosines > 0, axis=1).astype(np.int64), in_frame
 
 
 class UnseenFill(NamedTuple):
@@ -286,7 +302,7 @@ def fill_unseen(mesh, cameras: Cameras) -> UnseenFill:
         An `UnseenFill`; the input is not modified. A group of unseen vertices with no seen or
         out-of-frame neighbour anywhere around it stays where it is.
     """
-    tm = _trimesh(mesh)
+    tm = as_trimesh(mesh)
     v, f = np.asarray(tm.vertices, np.float64), np.asarray(tm.faces, np.int64)
     seen, in_frame = seen_counts((v, f), cameras)
     moved = (seen == 0) & (in_frame > 0)
@@ -345,7 +361,7 @@ def _outline_moves(v, faces, cams_arrays, size, edges, band: float, probe_px: fl
     r, _, focal, centre_px, centres = cams_arrays
     h, w = size
     tm = trimesh.Trimesh(v, faces, process=False)
-    normals, rays = np.asarray(tm.vertex_normals), _intersector(tm)
+    normals, rays = np.asarray(tm.vertex_normals), ray_intersector(tm)
     acc, count, offsets = np.zeros_like(v), np.zeros(len(v)), [np.zeros(0)]
     for k in range(len(r)):
         x = (v - centres[k]) @ r[k].T
@@ -387,7 +403,7 @@ def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 6, band: float =
     Returns:
         An `OutlineFit`; the input is not modified. The faces (and so the genus) are kept.
     """
-    tm = _trimesh(mesh)
+    tm = as_trimesh(mesh)
     masks = np.asarray(masks)
     if masks.ndim != 3 or len(masks) != len(cameras) or masks.shape[1:] != (cameras.height, cameras.width):
         raise ValueError(f"masks: expected ({len(cameras)}, {cameras.height}, {cameras.width}) for the cameras, "
@@ -401,7 +417,7 @@ def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 6, band: float =
     shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
     v0 = np.asarray(tm.vertices, np.float64) - shift
     faces = np.asarray(tm.faces, np.int64)
-    r, t, focal, centre_px, centres = _camera_arrays(cameras)
+    r, t, focal, centre_px, centres = camera_arrays(cameras)
     arrays = (r, t, focal, centre_px, centres - shift)
     edges, size = _signed_edges(masks), (cameras.height, cameras.width)
     v, moved, before = v0.copy(), np.zeros(len(v0), bool), float("nan")

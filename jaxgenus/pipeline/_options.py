@@ -212,6 +212,11 @@ class ReconstructOptions:
             moves onto the masks at their own size after the subdivision
             (`jaxgenus.geometry.fit_outline`; docs/photometric.md, "The outline at the masks' own
             size"): a fit at 1/4 leaves it about a pixel off at full size. False: off.
+        fit_photo_depth: photo targets, when the finest level fitted is coarser than the images:
+            after the outline, the surface moves along its normals to where the photos at their
+            own size agree (a plane sweep of patch NCC against neighbouring views,
+            `jaxgenus.geometry.fit_photo_depth`; docs/photometric.md, "The surface at the photos'
+            own size"); the outline stays. False: off.
     """
 
     n_cycles: int = 4
@@ -254,6 +259,7 @@ class ReconstructOptions:
     subdivide: bool = True
     fill_unseen: bool = True
     fit_outline: bool = True
+    fit_photo_depth: bool = True
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
@@ -276,7 +282,7 @@ class ReconstructOptions:
         _number("polish_average", self.polish_average, 0.0, 0.999)
         for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur", "texture_faces"):
             _number(name, getattr(self, name), 0.0, 1.0)
-        for name in ("subdivide", "fill_unseen", "fit_outline"):
+        for name in ("subdivide", "fill_unseen", "fit_outline", "fit_photo_depth"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"options.{name} must be True or False, got {getattr(self, name)!r}")
         if not isinstance(self.texture_adaptive, bool):

@@ -25,7 +25,7 @@ from typing import Callable
 import jax
 import numpy as np
 
-from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, phong_subdivision
+from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, fit_photo_depth, phong_subdivision
 from jaxgenus.pipeline._fit import FitIndex, fit
 from jaxgenus.pipeline._history import GenusEstimate, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -121,7 +121,7 @@ def reconstruct(
     def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
         return reconstruct(images, cams, g, targets=setup.targets.kind,
                            options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False,
-                                                       fit_outline=False),
+                                                       fit_outline=False, fit_photo_depth=False),
                            key=key, views=views, region=region)
 
     start = first_start(setup, fit_genus, say)
@@ -132,7 +132,7 @@ def reconstruct(
     if setup.options.fill_unseen and setup.targets.kind == "photo":
         rec = _filled(rec, cams, say)
     rec = _subdivided(rec, say) if setup.options.subdivide else rec
-    return _outlined(rec, setup, say) if setup.options.fit_outline else rec
+    return _at_full_size(rec, setup, say)
 
 
 def _filled(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
@@ -158,22 +158,41 @@ def _subdivided(rec: Reconstruction, say: Callable[[str], None]) -> Reconstructi
     return dataclasses.replace(rec, mesh=sub.mesh, albedo=sub.values)
 
 
-def _outlined(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
-    """`rec` with its outline on the masks at their own size (`ReconstructOptions.fit_outline`), where
-    the finest level fitted was coarser than the images."""
+def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` with its outline on the masks at their own size (`ReconstructOptions.fit_outline`) and,
+    for photos, its surface where the photos at their own size agree (`fit_photo_depth`), where the
+    finest level fitted was coarser than the images."""
+    opts = setup.options
     finest = min((r["factor"] for r in rec.history.resolution), default=1)
-    if finest <= 1:
+    depth = opts.fit_photo_depth and setup.targets.kind == "photo"
+    if finest <= 1 or not (opts.fit_outline or depth):
         return rec
     if setup.held is not None:
-        say("outline: not moved onto the masks' own size with the views split over processes")
+        say("outline and depth: not refined at the images' own size with the views split over processes")
         return rec
     v, f = rec.mesh.to_numpy()
-    cams = setup.world_cams
-    out = fit_outline((v, f), cams, setup.targets.alpha)
-    say(f"outline: {int(out.moved.sum())} vertices moved onto the masks at {cams.width}x{cams.height} (fitted at "
-        f"1/{finest}), {out.before:.2f} -> {out.after:.2f} px off their edges on average "
-        "(ReconstructOptions.fit_outline=False: off)")
-    return dataclasses.replace(rec, mesh=Mesh.from_numpy(out.vertices.astype(v.dtype), f))
+    cams, fixed = setup.world_cams, None
+    if opts.fit_outline:
+        out = fit_outline((v, f), cams, setup.targets.alpha)
+        say(f"outline: {int(out.moved.sum())} vertices moved onto the masks at {cams.width}x{cams.height} (fitted "
+            f"at 1/{finest}), {out.before:.2f} -> {out.after:.2f} px off their edges on average "
+            "(ReconstructOptions.fit_outline=False: off)")
+        v, fixed = out.vertices.astype(v.dtype), out.moved
+    if depth:
+        t0 = time.perf_counter()
+        fitted = fit_photo_depth((v, f), cams, setup.targets.fit, fixed=fixed)
+        n = int(fitted.measured.sum())
+        if n == 0:
+            say("photo depth: WARNING no vertex had texture and neighbouring views to measure its depth at "
+                f"{cams.width}x{cams.height} (ReconstructOptions.fit_photo_depth)")
+        else:
+            say(f"photo depth: the surface moved along its normals to where the photos agree at {cams.width}x"
+                f"{cams.height}: {n} of {len(v)} vertices measured, best offset {fitted.offset_px[0]:.2f} -> "
+                f"{fitted.offset_px[-1]:.2f} px over {len(fitted.offset_px)} sweeps, patch NCC "
+                f"{fitted.ncc_before[0]:.3f} as fitted, {fitted.ncc_after[-1]:.3f} at the last sweep's best offsets "
+                f"({time.perf_counter() - t0:.0f}s; ReconstructOptions.fit_photo_depth=False: off)")
+        v = fitted.vertices.astype(v.dtype)
+    return dataclasses.replace(rec, mesh=Mesh.from_numpy(v, f))
 
 
 def _start_line(start: Start, genus: int, seconds: float) -> str:

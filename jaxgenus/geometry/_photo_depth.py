@@ -1,0 +1,259 @@
+"""The surface moved along its normals to where the photos at their own size agree (a plane sweep).
+
+A fit made at a fraction of the photos' size places the surface to within about a pixel of that
+size, several pixels of the photos'. `fit_photo_depth` refines it at the photos' own size, vertex by
+vertex: each vertex a camera sees is given a reference camera (the one that faces it most squarely)
+and up to `neighbours` more that see it from 5-35 degrees away. A square of reference pixels around the
+vertex's projection is cast onto planes through the vertex, tangent to the surface and moved along the
+normal in steps of a fraction of a reference pixel; each plane sends the square into the neighbours,
+and the zero-mean normalized cross-correlation (NCC) of the grey levels there against the reference
+square scores it (exposure and gain differences between the views do not count). The best offset per
+vertex (a parabola through the best three) becomes a target, weighed by how far the best score stands
+above the mean one; vertices with too little texture (grey deviation under `min_contrast`), no
+neighbour, a best score under `min_ncc` or a best offset at the end of the range get none. The offsets
+of all vertices then solve `min sum_i w_i (d_i - t_i)^2 + smoothing * sum_edges (d_i - d_j)^2` (a
+sparse solve), so unmeasured vertices follow their neighbours; `fixed` vertices and their neighbours
+stay (the outline a mask placed: a move along the normal there moves the silhouette). Photos with a
+4th channel (a mask, as RGBA) count in a view only where the whole square lies on the mask: a square
+that reaches past the object's edge compares the background, not the surface. A few rounds, the
+normals and who sees what recomputed each time.
+
+The NCC of many windows is computed in JAX (one compiled kernel for chunks of vertices); visibility is
+cast with trimesh rays (embree when installed), as for `reprojection_psnr`.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sparse
+import scipy.sparse.linalg as sparse_linalg
+import trimesh
+from scipy import ndimage
+
+from jaxgenus.geometry._cameras import Cameras
+from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_cosines, photo_array, ray_intersector
+
+__all__ = ["PhotoDepthFit", "fit_photo_depth"]
+
+_CHUNK = 2048
+_GREY = np.array([0.299, 0.587, 0.114], np.float32)
+
+
+class PhotoDepthFit(NamedTuple):
+    """What `fit_photo_depth` returns.
+
+    Attributes:
+        vertices: `(V, 3)` the mesh's vertices moved along their normals (a new array).
+        measured: `(V,)` bool, the vertices whose sweep found a confident best offset (last round).
+        distance: `(V,)` how far each vertex moved in all (the mesh's units).
+        offset_px: the mean |best offset| of the measured vertices in reference pixels, per round.
+        ncc_before, ncc_after: the measured vertices' mean NCC at their place and at their best
+            offset, per round (the first round's `ncc_before` is the input's).
+    """
+
+    vertices: np.ndarray
+    measured: np.ndarray
+    distance: np.ndarray
+    offset_px: tuple[float, ...]
+    ncc_before: tuple[float, ...]
+    ncc_after: tuple[float, ...]
+
+
+def _sample(grey, cam, u, v):
+    """Bilinear grey levels of views `cam` at pixel positions `(u, v)` (centres at +0.5), edge-clamped."""
+    _, h, w = grey.shape
+    x, y = jnp.clip(u - 0.5, 0.0, w - 1.001), jnp.clip(v - 0.5, 0.0, h - 1.001)
+    x0, y0 = jnp.floor(x).astype(jnp.int32), jnp.floor(y).astype(jnp.int32)
+    ax, ay = x - x0, y - y0
+    flat = grey.reshape(-1)
+    b = cam * (h * w) + y0 * w + x0
+    return (flat[b] * (1 - ax) + flat[b + 1] * ax) * (1 - ay) + (flat[b + w] * (1 - ax) + flat[b + w + 1] * ax) * ay
+
+
+@jax.jit
+def _sweep_scores(grey, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok):
+    """NCC `(C, K, D)` of each vertex's reference square against its `K` neighbours on `D` planes
+    along its normal (NaN: no such neighbour or out of its frame), and the reference squares' grey
+    deviation `(C,)`."""
+    _, h, w = grey.shape
+    x = jnp.einsum("cij,cj->ci", rot[ref], v - centres[ref])
+    pu = (focal[ref, 0] * x[:, 0] / x[:, 2] + centre_px[ref, 0])[:, None] + offsets[None, :, 0]
+    pv = (focal[ref, 1] * x[:, 1] / x[:, 2] + centre_px[ref, 1])[:, None] + offsets[None, :, 1]
+    rays = jnp.stack([(pu - centre_px[ref, 0, None]) / focal[ref, 0, None],
+                      (pv - centre_px[ref, 1, None]) / focal[ref, 1, None], jnp.ones_like(pu)], -1)
+    rays = jnp.einsum("cji,cpj->cpi", rot[ref], rays)  # (C, P, 3) world directions
+    a = _sample(grey, ref[:, None], pu, pv)
+    a = a - a.mean(1, keepdims=True)
+    sa = jnp.sqrt((a * a).mean(1) + 1e-12)
+    planes = v[:, None, :] + (steps[None, :] * x[:, 2:3] / focal[ref, 0:1])[..., None] * n[:, None, :]
+    t = (jnp.einsum("cdi,ci->cd", planes - centres[ref][:, None], n)[:, :, None]
+         / jnp.einsum("cpi,ci->cp", rays, n)[:, None, :])
+    points = centres[ref][:, None, None] + t[..., None] * rays[:, None]  # (C, D, P, 3)
+    out = []
+    for j in range(nbr.shape[1]):
+        cam = nbr[:, j]
+        y = jnp.einsum("cij,cdpj->cdpi", rot[cam], points - centres[cam][:, None, None])
+        z = jnp.maximum(y[..., 2], 1e-9)
+        u = focal[cam, 0, None, None] * y[..., 0] / z + centre_px[cam, 0, None, None]
+        q = focal[cam, 1, None, None] * y[..., 1] / z + centre_px[cam, 1, None, None]
+        b = _sample(grey, cam[:, None, None], u, q)
+        b = b - b.mean(2, keepdims=True)
+        ncc = (a[:, None] * b).mean(2) / (sa[:, None] * jnp.sqrt((b * b).mean(2) + 1e-12))
+        inside = ((u > 1) & (u < w - 1) & (q > 1) & (q < h - 1) & (y[..., 2] > 0)).all(2)
+        out.append(jnp.where(inside & nbr_ok[:, j, None], ncc, jnp.nan))
+    return jnp.stack(out, 1), sa
+
+
+def _squares_on_mask(photos, reach: float):
+    """Per view of RGBA `photos`, where a square reaching `reach` pixels around a pixel lies on the
+    mask (`(N, H, W)` bool); None for RGB photos."""
+    if np.shape(photos)[-1] != 4:
+        return None
+    alpha = np.asarray(photos)[..., 3]
+    alpha = alpha / 255.0 if alpha.dtype == np.uint8 else alpha
+    return np.stack([ndimage.distance_transform_edt(np.pad(a > 0.5, 1, mode="edge"))[1:-1, 1:-1] > reach for a in alpha])
+
+
+def _on(on_mask, v, arrays):
+    """`(V, N)` whether each vertex projects where `on_mask` holds in each view."""
+    r, _, focal, centre_px, centres = arrays
+    _, h, w = on_mask.shape
+    out = np.zeros((len(v), len(r)), bool)
+    for k in range(len(r)):
+        x = (v - centres[k]) @ r[k].T
+        z = np.maximum(x[:, 2], 1e-12)
+        u = np.clip(np.floor(focal[k, 0] * x[:, 0] / z + centre_px[k, 0]), 0, w - 1).astype(np.int64)
+        y = np.clip(np.floor(focal[k, 1] * x[:, 1] / z + centre_px[k, 1]), 0, h - 1).astype(np.int64)
+        out[:, k] = on_mask[k, y, u] & (x[:, 2] > 0)
+    return out
+
+
+def _partners(v, cosines, centres, neighbours: int, max_angle: float):
+    """Per vertex: the reference camera (facing it most squarely), up to `neighbours` others that
+    see it 5 to `max_angle` degrees away from the reference's direction, and which of those exist."""
+    ref = np.argmax(cosines, axis=1)
+    usable = cosines[np.arange(len(v)), ref] > 0.3
+    dirs = centres[None] - v[:, None]
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    cos_ref = np.einsum("vni,vi->vn", dirs, dirs[np.arange(len(v)), ref])
+    good = (cosines > 0.1) & (cos_ref <= np.cos(np.radians(5.0))) & (cos_ref >= np.cos(np.radians(max_angle)))
+    order = np.argsort(-np.where(good, cosines, -9.0), axis=1)[:, :neighbours]
+    return ref, order, np.take_along_axis(good, order, 1) & usable[:, None]
+
+
+def _scores(grey, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok):
+    """`_sweep_scores` over all vertices in fixed-size chunks (one compilation): the mean NCC over
+    each vertex's neighbours per plane `(V, D)`, how many neighbours counted, the grey deviation."""
+    r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
+    scores, counts, spread = [], [], []
+    for s in range(0, len(v), _CHUNK):
+        idx = np.minimum(np.arange(s, s + _CHUNK), len(v) - 1)
+        ncc, sa = _sweep_scores(grey, r, focal, centre_px, centres, offsets, steps,
+                                jnp.asarray(v[idx], jnp.float32), jnp.asarray(normals[idx], jnp.float32),
+                                jnp.asarray(ref[idx]), jnp.asarray(nbr[idx]), jnp.asarray(nbr_ok[idx]))
+        ncc = np.asarray(ncc)[: min(_CHUNK, len(v) - s)]
+        ok = np.isfinite(ncc[:, :, len(steps) // 2])
+        scores.append(np.where(ok[:, :, None] & np.isfinite(ncc), ncc, 0.0).sum(1) / np.maximum(ok.sum(1), 1)[:, None])
+        counts.append(ok.sum(1))
+        spread.append(np.asarray(sa)[: len(ncc)])
+    return np.concatenate(scores), np.concatenate(counts), np.concatenate(spread)
+
+
+def _targets(score, count, spread, min_ncc: float, min_contrast: float):
+    """Best offset (in steps, parabola-refined), weight and the NCC at 0 and at the best, per vertex."""
+    n_steps = score.shape[1]
+    half = n_steps // 2
+    best = np.argmax(score, axis=1)
+    mid = np.clip(best, 1, n_steps - 2)
+    rows = np.arange(len(score))
+    s0, s1, s2 = score[rows, mid - 1], score[rows, mid], score[rows, mid + 1]
+    curve = s0 - 2 * s1 + s2
+    frac = np.where(curve < -1e-9, 0.5 * (s0 - s2) / np.where(curve < -1e-9, curve, -1.0), 0.0)
+    offset = mid + np.clip(frac, -0.5, 0.5) - half
+    top = score[rows, best]
+    ok = (count >= 1) & (spread > min_contrast) & (top > min_ncc) & (best > 0) & (best < n_steps - 1)
+    weight = np.where(ok, np.clip((top - score.mean(axis=1)) / 0.2, 0.0, 1.0), 0.0)
+    return offset, weight, ok, score[rows, half], top
+
+
+def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int = 2, neighbours: int = 8,
+                    max_angle: float = 35.0, patch: int = 4, spacing: float = 1.5, search_px: float = 12.0,
+                    step_px: float = 0.75, smoothing: float = 0.1, min_ncc: float = 0.3,
+                    min_contrast: float = 0.02) -> PhotoDepthFit:
+    """`mesh`'s vertices moved along their normals to where `photos` agree (module doc).
+
+    Args:
+        mesh: a `Mesh`, a `trimesh.Trimesh` or `(vertices, faces)`, in the cameras' frame.
+        cameras: the `Cameras` of `photos` (pinhole, their size the photos').
+        photos: `(N, H, W, 3|4)` photos (float in [0, 1] or uint8); a 4th channel is the object's
+            mask (> 0.5: object): a view counts for a vertex only where its square lies on it.
+        fixed: optional `(V,)` bool, vertices that stay (with their one-ring), such as an outline.
+        rounds: sweeps, each from the last one's surface; neighbours: views compared with the
+            reference per vertex; max_angle: how far (degrees) from the reference they may look.
+        patch, spacing: the reference square is `2 patch + 1` samples a side, `spacing` pixels apart.
+        search_px, step_px: the planes span +-`search_px` reference pixels along the normal in
+            steps of `step_px`.
+        smoothing: the weight of the edge term of the solve; min_ncc, min_contrast: the least best
+            score and grey deviation (in [0, 1] grey levels) a vertex needs to count.
+
+    Returns:
+        A `PhotoDepthFit`; the input is not modified. The faces (and so the genus) are kept.
+    """
+    tm = as_trimesh(mesh)
+    src = photo_array(photos, "photos", len(cameras))
+    on_mask = _squares_on_mask(photos, patch * spacing * np.sqrt(2.0) + 1.0)
+    if src.shape[1:3] != (cameras.height, cameras.width):
+        raise ValueError(f"photos: size {src.shape[1:3]} differs from the cameras' {(cameras.height, cameras.width)}")
+    faces = np.asarray(tm.faces, np.int64)
+    keep = np.zeros(len(tm.vertices), bool) if fixed is None else np.asarray(fixed)
+    if keep.shape != (len(tm.vertices),) or keep.dtype != bool:
+        raise ValueError(f"fixed: expected a ({len(tm.vertices)},) bool array, got {keep.dtype} {keep.shape}")
+    if not (isinstance(rounds, int) and rounds >= 0 and isinstance(neighbours, int) and neighbours >= 1
+            and isinstance(patch, int) and patch >= 1 and 5.0 < max_angle < 90.0
+            and min(spacing, search_px, step_px) > 0 and step_px < search_px and smoothing > 0):
+        raise ValueError("rounds >= 0, neighbours >= 1, patch >= 1, 5 < max_angle < 90, spacing, search_px, step_px "
+                         f"and smoothing > 0 and step_px < search_px needed, got {rounds}, {neighbours}, {patch}, "
+                         f"{max_angle}, {spacing}, {search_px}, {step_px}, {smoothing}")
+    shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
+    v0 = np.asarray(tm.vertices, np.float64) - shift
+    r, t, focal, centre_px, centres = camera_arrays(cameras)
+    arrays = (r, t, focal, centre_px, centres - shift)
+    grey = jnp.asarray(src @ _GREY)
+    g = np.arange(-patch, patch + 1, dtype=np.float32) * spacing
+    offsets = jnp.asarray(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2))
+    n_half = int(np.floor(search_px / step_px))
+    steps = jnp.asarray(np.arange(-n_half, n_half + 1, dtype=np.float32) * step_px)
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    adj = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v0), len(v0))).tocsr()
+    adj = ((adj + adj.T) > 0).astype(np.float64)
+    keep = keep | (adj @ keep.astype(np.float64) > 0)
+    lap = ((sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj) * smoothing).tocsr()
+    v, measured, stats = v0.copy(), np.zeros(len(v0), bool), ([], [], [])
+    for _ in range(rounds):
+        cur = trimesh.Trimesh(v, faces, process=False)
+        normals = np.asarray(cur.vertex_normals)
+        tol = 1e-3 * float(np.linalg.norm(np.ptp(v, axis=0)))
+        cosines, _ = facing_cosines(cur, ray_intersector(cur), tol, arrays, (cameras.height, cameras.width),
+                                    margin=patch * spacing + 2)
+        if on_mask is not None:
+            cosines = np.where(_on(on_mask, v, arrays), cosines, -1.0)
+        ref, nbr, nbr_ok = _partners(v, cosines, arrays[4], neighbours, max_angle)
+        score, count, spread = _scores(grey, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok)
+        offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast)
+        pixel = np.einsum("vi,vi->v", v - arrays[4][ref], r[ref, 2]) / focal[ref, 0]
+        free = np.flatnonzero(~keep)  # the kept vertices' offsets are 0 exactly
+        d = np.zeros(len(v))
+        if len(free):
+            system = (sparse.diags(weight[free] + 1e-6) + lap[free][:, free]).tocsc()
+            d[free] = sparse_linalg.spsolve(system, weight[free] * offset[free] * step_px * pixel[free])
+        d = np.clip(d, -search_px * pixel, search_px * pixel)
+        if not np.isfinite(d).all():
+            break
+        v = v + d[:, None] * normals
+        for acc, value in zip(stats, (np.abs(offset[measured]) * step_px, at_zero[measured], top[measured])):
+            acc.append(float(np.mean(value)) if measured.any() else float("nan"))
+    return PhotoDepthFit(v + shift, measured, np.linalg.norm(v - v0, axis=1), *(tuple(s) for s in stats))

@@ -1,0 +1,117 @@
+"""`fit_photo_depth`: the surface moved along its normals to where photos at their own size agree,
+judged on photos ray cast by trimesh (tests/_raycast.py), not by this library's renderer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from _raycast import cell_albedo, raycast_lambert
+
+import jaxgenus as jg
+from jaxgenus.geometry import fit_photo_depth
+
+LIGHT = (0.3, -0.5, 0.8)
+
+
+def _ring(n=16, elevation_deg=15.0, radius=4.0, resolution=160):
+    a = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    e = np.radians(elevation_deg)
+    eyes = radius * np.stack([np.cos(a) * np.cos(e), np.sin(a) * np.cos(e), np.full(n, np.sin(e))], axis=1)
+    return jg.look_at(eyes, up=(0.0, 0.0, 1.0), fov_deg=40.0, resolution=resolution)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A unit sphere with 3D colour cells of about 3 px, 16 views of 160^2 around it."""
+    cams = _ring()
+    sphere = trimesh.creation.icosphere(subdivisions=5)
+    photos = raycast_lambert(cams, sphere, light_direction=LIGHT, ambient=0.4, albedo=cell_albedo(0.05))
+    pixel = 4.0 * np.tan(np.radians(20.0)) / 80  # world size of a pixel at the sphere's centre
+    return cams, sphere, photos, pixel
+
+
+def _seen_band(v):
+    """Vertices the ring faces squarely (|z| small), where every view's neighbours see them too."""
+    return np.abs(v[:, 2]) < 0.4
+
+
+def test_a_sphere_two_pixels_too_large_moves_onto_the_photos(scene):
+    cams, sphere, photos, pixel = scene
+    big = trimesh.creation.icosphere(subdivisions=4, radius=1.0 + 2.5 * pixel)
+    v, f = np.asarray(big.vertices), np.asarray(big.faces)
+    before, photos_before = v.copy(), photos.copy()
+    out = fit_photo_depth((v, f), cams, photos)
+    np.testing.assert_array_equal(v, before)  # the inputs are not modified
+    np.testing.assert_array_equal(photos, photos_before)
+    band = _seen_band(v)
+    r_before, r_after = np.linalg.norm(v[band], axis=1), np.linalg.norm(out.vertices[band], axis=1)
+    # 2.5 px outside before; within half a pixel of the true radius afterwards (faces are chords: the
+    # vertices of a 4-subdivided icosphere sit slightly outside the ray-cast 5-subdivided one)
+    assert abs(np.median(r_before) - 1.0) > 2.0 * pixel
+    assert abs(np.median(r_after) - 1.0) < 0.5 * pixel, (np.median(r_after) - 1.0) / pixel
+    assert out.measured[band].mean() > 0.5
+    assert out.offset_px[0] > 1.5 and out.ncc_after[0] > out.ncc_before[0]
+    assert np.all(np.isfinite(out.vertices))
+    assert trimesh.Trimesh(out.vertices, f, process=False).is_watertight
+
+
+def test_exposure_differences_between_views_do_not_count(scene):
+    cams, sphere, photos, pixel = scene
+    gains = np.linspace(0.5, 1.4, len(photos))[np.random.default_rng(0).permutation(len(photos))]
+    dimmed = photos.copy()
+    dimmed[..., :3] = np.clip(photos[..., :3] * gains[:, None, None, None] + 0.05, 0.0, 1.0)
+    big = trimesh.creation.icosphere(subdivisions=4, radius=1.0 + 2.5 * pixel)
+    out = fit_photo_depth(big, cams, dimmed)
+    band = _seen_band(np.asarray(big.vertices))
+    assert abs(np.median(np.linalg.norm(out.vertices[band], axis=1)) - 1.0) < 0.5 * pixel
+
+
+def test_the_right_surface_stays_and_fixed_vertices_do_not_move(scene):
+    cams, sphere, photos, pixel = scene
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    fixed = v[:, 0] > 0.9
+    out = fit_photo_depth((v, f), cams, photos, fixed=fixed)
+    band = _seen_band(v)
+    assert np.median(out.distance[band]) < 0.25 * pixel, np.median(out.distance[band]) / pixel
+    assert np.max(out.distance[fixed]) == 0.0
+
+
+def test_a_surface_without_texture_is_left_alone(scene):
+    cams, sphere, _, _ = scene
+    flat = raycast_lambert(cams, sphere, light_direction=LIGHT, ambient=1.0, albedo=(0.6, 0.5, 0.4))
+    out = fit_photo_depth(sphere, cams, flat)
+    assert not out.measured.any() and np.all(np.isnan(out.offset_px))
+    np.testing.assert_allclose(out.vertices, sphere.vertices, atol=1e-9)
+
+
+def test_bad_input_is_named(scene):
+    cams, sphere, photos, _ = scene
+    with pytest.raises(ValueError, match="photos"):
+        fit_photo_depth(sphere, cams, photos[:3])
+    with pytest.raises(ValueError, match="photos"):
+        fit_photo_depth(sphere, cams, photos[:, :80])
+    with pytest.raises(ValueError, match="fixed"):
+        fit_photo_depth(sphere, cams, photos, fixed=np.zeros(5, bool))
+    with pytest.raises(ValueError, match="rounds"):
+        fit_photo_depth(sphere, cams, photos, rounds=-1)
+    with pytest.raises(ValueError, match="fit_photo_depth"):
+        jg.ReconstructOptions(fit_photo_depth=1)
+
+
+
+def test_reconstruct_sweeps_photos_when_it_fitted_coarser_images():
+    from _meshes import torus_trimesh
+    import jax
+
+    tm = torus_trimesh(1.0, 0.4, 48, 24)
+    cams = _ring(6, 30.0, 3.5, resolution=256)
+    photos = raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.4, albedo=cell_albedo(0.08))
+    # two short cycles at 1/2 (a coarse level of 128): the sweep runs at 256^2 after the outline
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=5, initial_faces=600, refits=0,
+                                           max_faces=600, subdivide=False)
+    lines = []
+    rec = jg.reconstruct(photos, cams, 1, targets="photo", options=opts, key=jax.random.key(0), log=lines.append)
+    assert min(r["factor"] for r in rec.history.resolution) > 1
+    assert any(line.startswith("photo depth:") for line in lines), lines
+    assert rec.genus == 1 and np.all(np.isfinite(rec.mesh.to_numpy()[0]))
