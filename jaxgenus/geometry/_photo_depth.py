@@ -242,7 +242,11 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
         if on_mask is not None:
             cosines = np.where(_on(on_mask, v, arrays), cosines, -1.0)
         ref, nbr, nbr_ok = _partners(v, cosines, arrays[4], neighbours, max_angle)
-        score, count, spread = _scores(grey, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok)
+        score, count, spread = np.zeros((len(v), len(steps))), np.zeros(len(v), np.int64), np.zeros(len(v))
+        act = np.flatnonzero(nbr_ok.any(axis=1))  # only the vertices some pair of views can measure
+        if len(act):
+            score[act], count[act], spread[act] = _scores(grey, arrays, offsets, steps, v[act], normals[act], ref[act],
+                                                          nbr[act], nbr_ok[act])
         offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast)
         pixel = np.einsum("vi,vi->v", v - arrays[4][ref], r[ref, 2]) / focal[ref, 0]
         free = np.flatnonzero(~keep)  # the kept vertices' offsets are 0 exactly

@@ -217,6 +217,12 @@ class ReconstructOptions:
             own size agree (a plane sweep of patch NCC against neighbouring views,
             `jaxgenus.geometry.fit_photo_depth`; docs/photometric.md, "The surface at the photos'
             own size"); the outline stays. False: off.
+        depth_edge_px: before the outline and the sweep, the mesh goes through one more Phong
+            subdivision while its median edge, seen from the nearest camera at the images' own size,
+            is longer than this many pixels (at most 2^20 faces): the sweep measures a vertex's
+            depth from a 13-pixel square, and relief between vertices further apart than that is
+            not measured (DTU scan24: 11 px edges -> 5.5 px, 152k -> 608k faces, seed 0 24.87 ->
+            24.94 dB held-out). 0: no more subdivision.
     """
 
     n_cycles: int = 4
@@ -260,6 +266,7 @@ class ReconstructOptions:
     fill_unseen: bool = True
     fit_outline: bool = True
     fit_photo_depth: bool = True
+    depth_edge_px: float = 8.0
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
@@ -275,7 +282,7 @@ class ReconstructOptions:
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
         for name in ("refit_carve", "fine_below", "texture_ratio", "texture_alpha", "texture_photo", "stereo_carve",
-                     "polish_lambda"):
+                     "polish_lambda", "depth_edge_px"):
             _number(name, getattr(self, name), 0.0, math.inf)
         if self.polish_alpha is not None:
             _number("polish_alpha", self.polish_alpha, 0.0, math.inf)

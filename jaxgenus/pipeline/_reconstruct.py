@@ -33,6 +33,8 @@ from jaxgenus.pipeline._setup import Setup, prepare
 from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._start_stage import first_start, refit_start
 
+_DEPTH_MAX_FACES = 1 << 20
+
 __all__ = ["genus_estimate", "reconstruct"]
 
 # A refit that lowers the mean normal error by less than this share of it predicts a next
@@ -150,12 +152,37 @@ def _filled(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> R
     return dataclasses.replace(rec, mesh=Mesh.from_numpy(fill.vertices.astype(v.dtype), f))
 
 
-def _subdivided(rec: Reconstruction, say: Callable[[str], None]) -> Reconstruction:
+def _subdivided(rec: Reconstruction, say: Callable[[str], None],
+                why: str = "the new vertices on the smooth surface through the fitted ones (Phong; "
+                           "ReconstructOptions.subdivide=False: off)") -> Reconstruction:
     """`rec` with its mesh (and albedo) through one Phong subdivision (`ReconstructOptions.subdivide`)."""
     sub = phong_subdivision(rec.mesh, values=rec.albedo)
-    say(f"subdivided: {int(rec.mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, the new vertices on the smooth "
-        "surface through the fitted ones (Phong; ReconstructOptions.subdivide=False: off)")
+    say(f"subdivided: {int(rec.mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, {why}")
     return dataclasses.replace(rec, mesh=sub.mesh, albedo=sub.values)
+
+
+def _median_edge_px(v: np.ndarray, f: np.ndarray, cams: Cameras) -> float:
+    """The median edge length of mesh `(v, f)` in pixels of the images' own size, each edge seen from
+    the nearest camera centre (the mean focal length)."""
+    e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    mid = 0.5 * (v[e[:, 0]] + v[e[:, 1]])
+    near = np.full(len(e), np.inf)
+    for c in np.asarray(cams.centers, np.float64):
+        near = np.minimum(near, np.linalg.norm(mid - c, axis=1))
+    length = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
+    return float(np.median(length / np.maximum(near, 1e-12)) * np.mean(np.asarray(cams.focal)))
+
+
+def _finer_for_photos(rec: Reconstruction, cams: Cameras, edge_px: float, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` through Phong subdivisions while its median edge is longer than `edge_px` pixels at the
+    images' own size, up to `_DEPTH_MAX_FACES` faces (`ReconstructOptions.depth_edge_px`)."""
+    while True:
+        v, f = rec.mesh.to_numpy()
+        px = _median_edge_px(np.asarray(v, np.float64), np.asarray(f), cams)
+        if px <= edge_px or 4 * len(f) > _DEPTH_MAX_FACES:
+            return rec
+        rec = _subdivided(rec, say, f"for the photos' detail: the median edge {px:.1f} px at {cams.width}x"
+                                    f"{cams.height} (more than {edge_px:g}; ReconstructOptions.depth_edge_px=0: off)")
 
 
 def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
@@ -170,8 +197,10 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
     if setup.held is not None:
         say("outline and depth: not refined at the images' own size with the views split over processes")
         return rec
-    v, f = rec.mesh.to_numpy()
     cams, fixed = setup.world_cams, None
+    if depth and opts.depth_edge_px > 0:
+        rec = _finer_for_photos(rec, cams, opts.depth_edge_px, say)
+    v, f = rec.mesh.to_numpy()
     if opts.fit_outline:
         out = fit_outline((v, f), cams, setup.targets.alpha)
         say(f"outline: {int(out.moved.sum())} vertices moved onto the masks at {cams.width}x{cams.height} (fitted "
