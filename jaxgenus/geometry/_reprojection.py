@@ -387,7 +387,7 @@ def _outline_moves(v, faces, cams_arrays, size, edges, band: float, probe_px: fl
     return acc, count, float(np.mean(offsets)) if len(offsets) else float("nan")
 
 
-def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 6, band: float = 3.0, step: float = 0.7,
+def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 24, band: float = 3.0, step: float = 0.7,
                 probe_px: float = 0.1) -> OutlineFit:
     """The outline of `mesh` moved onto `masks` at their own size (module doc).
 

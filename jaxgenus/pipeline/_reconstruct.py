@@ -202,7 +202,8 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
         rec = _finer_for_photos(rec, cams, opts.depth_edge_px, say)
     v, f = rec.mesh.to_numpy()
     if opts.fit_outline:
-        out = fit_outline((v, f), cams, setup.targets.alpha)
+        # the fit placed its outline to about a pixel of the size it fitted: look that far (and a bit) past the edges
+        out = fit_outline((v, f), cams, setup.targets.alpha, band=max(3.0, 1.25 * finest))
         say(f"outline: {int(out.moved.sum())} vertices moved onto the masks at {cams.width}x{cams.height} (fitted "
             f"at 1/{finest}), {out.before:.2f} -> {out.after:.2f} px off their edges on average "
             "(ReconstructOptions.fit_outline=False: off)")
