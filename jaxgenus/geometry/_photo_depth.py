@@ -40,7 +40,8 @@ from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_co
 
 __all__ = ["PhotoDepthFit", "fit_photo_depth"]
 
-_CHUNK = 2048
+_CHUNK = 512
+_LEVEL = 1.0 / 65535.0  # the colours' 16-bit step on the device
 
 
 class PhotoDepthFit(NamedTuple):
@@ -71,7 +72,17 @@ def _sample(colour, cam, u, v):
     ax, ay = (x - x0)[..., None], (y - y0)[..., None]
     flat = colour.reshape(-1, 3)
     b = cam * (h * w) + y0 * w + x0
-    return (flat[b] * (1 - ax) + flat[b + 1] * ax) * (1 - ay) + (flat[b + w] * (1 - ax) + flat[b + w + 1] * ax) * ay
+    at = lambda i: flat[i].astype(jnp.float32) * _LEVEL  # noqa: E731
+    return (at(b) * (1 - ax) + at(b + 1) * ax) * (1 - ay) + (at(b + w) * (1 - ax) + at(b + w + 1) * ax) * ay
+
+
+def _device_colours(src: np.ndarray):
+    """The photos' colours `(N, H, W, 3)` on the device as 16-bit levels `_LEVEL` apart (half the memory
+    of float32), converted a view at a time: no float copy of all the photos is made."""
+    out = np.empty(src.shape[:3] + (3,), np.uint16)
+    for k in range(len(src)):
+        out[k] = np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0))
+    return jnp.asarray(out)
 
 
 @jax.jit
@@ -223,7 +234,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     v0 = np.asarray(tm.vertices, np.float64) - shift
     r, t, focal, centre_px, centres = camera_arrays(cameras)
     arrays = (r, t, focal, centre_px, centres - shift)
-    colour = jnp.asarray(src[..., :3], jnp.float32)
+    colour = _device_colours(src)
     g = np.arange(-patch, patch + 1, dtype=np.float32) * spacing
     offsets = jnp.asarray(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2))
     n_half = int(np.floor(search_px / step_px))

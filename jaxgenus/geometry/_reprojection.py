@@ -96,10 +96,13 @@ def photo_array(x, name: str, n: int | None = None) -> np.ndarray:
         raise ValueError(f"{name}: expected (N, H, W, 3 or 4) photos, got shape {x.shape}")
     if n is not None and len(x) != n:
         raise ValueError(f"{name}: {len(x)} photos for {n} cameras")
-    x = x.astype(np.float32) / 255.0 if x.dtype == np.uint8 else x.astype(np.float32)
-    if not np.isfinite(x).all():
+    if x.dtype != np.uint8 and not all(np.isfinite(view).all() for view in x):  # a view at a time: no full-size mask
         raise ValueError(f"{name}: photos must be finite")
-    return x[..., :3]
+    if x.dtype == np.uint8:
+        out = x[..., :3].astype(np.float32)
+        out *= np.float32(1.0 / 255.0)
+        return out
+    return np.asarray(x[..., :3], np.float32)  # float32 photos are not copied (and never written to)
 
 
 def camera_arrays(cams: Cameras):
