@@ -67,6 +67,18 @@ def test_exposure_differences_between_views_do_not_count(scene):
     assert abs(np.median(np.linalg.norm(out.vertices[band], axis=1)) - 1.0) < 0.5 * pixel
 
 
+def test_8_bit_photos_sweep_as_their_float_copies(scene):
+    """The photos are kept on the device as 16-bit levels: 8-bit levels map onto them exactly, so uint8
+    photos and the same photos as float32 in [0, 1] give the same surface."""
+    cams, _, photos, pixel = scene
+    eight = np.rint(np.clip(photos, 0.0, 1.0) * 255).astype(np.uint8)
+    big = trimesh.creation.icosphere(subdivisions=3, radius=1.0 + 2.0 * pixel)
+    a = fit_photo_depth(big, cams, eight, rounds=1)
+    b = fit_photo_depth(big, cams, eight.astype(np.float32) / 255.0, rounds=1)
+    assert a.measured.sum() > 50
+    np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
+
+
 def test_the_right_surface_stays_and_fixed_vertices_do_not_move(scene):
     cams, sphere, photos, pixel = scene
     v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
