@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from jaxgenus._batch import add_batch_command
 
 
 def _primitives(args) -> int:
@@ -42,6 +45,10 @@ class _InputError(Exception):
     """Bad input: reported as one `error:` line, exit code EXIT_INPUT."""
 
 
+class _UsageError(_InputError):
+    """A flag the run cannot use (an --out it cannot write, a value out of range): exit code EXIT_USAGE."""
+
+
 def _clock(t0):
     def say(line):
         print(f"[{time.perf_counter() - t0:6.1f}s] {line}", flush=True)
@@ -73,8 +80,9 @@ def _report(rec, gt=None):
     import jaxgenus as jg
 
     h = rec.history
-    asked = "estimated" if h["genus_estimate"] is not None else "requested"
-    print(f"genus {rec.genus} ({asked} {h['requested_genus']})  faces {int(rec.mesh.n_faces)}"
+    est = h["genus_estimate"]  # the cue that decided and the agreement of the cues, or the genus asked for
+    asked = f"estimated from the {est.cue}, agreement {est.agreement:.0%}" if est is not None else f"requested {h['requested_genus']}"
+    print(f"genus {rec.genus} ({asked})  faces {int(rec.mesh.n_faces)}"
           f"  time {h['seconds']:.1f}s  start {h['start']}"
           + ("  (thin visual hull: fine() settings)" if h["fine"] else ""))
     iou = np.asarray(h["silhouette_iou"])
@@ -229,8 +237,18 @@ def _plan_line(opts, targets) -> str:
 
 
 def _check_outputs(args):
-    """Refuse an --out whose mesh or JSON history would overwrite an input file."""
+    """Refuse, before any work, an --out that cannot be written or whose mesh or JSON history would
+    overwrite an input file, and a --downsample under 1."""
     out = Path(args.out)
+    folder = out.parent
+    while not folder.exists():
+        folder = folder.parent
+    why = ("is a folder; give the mesh's file name" if out.is_dir() else f"{folder} is a file, not a folder"
+           if not folder.is_dir() else f"the folder {folder} is not writable" if not os.access(folder, os.W_OK) else "")
+    if why:
+        raise _UsageError(f"--out {args.out}: cannot be written: {why}")
+    if getattr(args, "downsample", None) is not None and args.downsample < 1:
+        raise _UsageError(f"--downsample: expected an integer >= 1 (1: the images as they are), got {args.downsample}")
     inputs = [Path(p) for p in (args.mesh, args.images, args.masks, args.cameras) if p]
     for target in (out, out.with_suffix(".json")):
         for src in inputs:
@@ -289,14 +307,6 @@ def _reconstruct(args) -> int:
     return _exit_code(rec)
 
 
-def _batch(args) -> int:
-    from jaxgenus._batch import run_batch
-
-    return run_batch(Path(args.captures), Path(args.out), list(args.rest), main,
-                     num_processes=args.num_processes, process_id=args.process_id, jobs=args.jobs,
-                     summary=not args.worker)
-
-
 def _demo(args) -> int:
     import jaxgenus as jg
 
@@ -316,16 +326,7 @@ def _demo(args) -> int:
 
 
 def _add_batch_and_demo(sub) -> None:
-    b = sub.add_parser("batch", help="reconstruct every capture of a folder (images/, masks/, a camera file each)",
-                       epilog="options after CAPTURES are those of `jaxgenus reconstruct` (--genus, --option, ...)")
-    b.add_argument("captures", help="a folder of capture subfolders")
-    b.add_argument("--out", required=True, help="output folder: OUT/NAME/mesh.obj, OUT/summary.md")
-    b.add_argument("--num-processes", type=int, default=1, metavar="N", help="N processes share the captures")
-    b.add_argument("--process-id", type=int, default=0, metavar="I", help="this process takes every N-th from I")
-    b.add_argument("--jobs", type=int, default=1, metavar="K",
-                   help="K captures side by side, each in a worker process with its share of the GPUs")
-    b.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)  # a --jobs worker: no summary
-    b.set_defaults(run=_batch)
+    add_batch_command(sub, main)
     d = sub.add_parser("demo", help="reconstruct a built-in scene and print chamfer, IoU and genus")
     d.add_argument("--scene", default="three_tori", choices=["torus", "tilted_tori", "three_tori"])
     d.add_argument("--views", type=int, default=16)
@@ -391,7 +392,8 @@ def main(argv=None) -> int:
                    "IDR/NeuS cameras.npz or Middlebury *_par.txt (paired with the images by name)")
     r.add_argument("--region", default="auto", help="a sphere X,Y,Z,R (camera units) the object lies in, cutting the "
                    "visual hull; 'auto' (default): an IDR/NeuS camera file's scale_mat sphere; 'none'")
-    r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' to estimate it (default)")
+    r.add_argument("--genus", default="auto", help="the object's genus, or 'auto' (default): estimated from the silhouettes and, "
+                   "for normal maps, the holes the images confirm after a first fit (the log says which decided)")
     r.add_argument("--refits", type=int, default=None, help="fits after the first, each started from the previous "
                    "result: carves concavities few views see (default: up to 2 for normal maps over 1.5 x the "
                    "coarse resolution, else 0; ReconstructOptions.refits)")
@@ -441,7 +443,7 @@ def main(argv=None) -> int:
     except (_InputError, ValueError, FileNotFoundError) as err:
         msg = " ".join(str(err).split())
         print(f"error: {msg}", file=sys.stderr)
-        return EXIT_INPUT
+        return EXIT_USAGE if isinstance(err, _UsageError) else EXIT_INPUT
 
 
 if __name__ == "__main__":

@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 from typing import Callable
 
-__all__ = ["capture_folders", "run_batch"]
+__all__ = ["add_batch_command", "capture_folders", "run_batch"]
 
 _IMAGES = ("images", "image", "rgb")
 _MASKS = ("masks", "mask")
@@ -181,3 +181,21 @@ def run_batch(root: Path, out: Path, options: list[str], reconstruct: Callable[[
         rows = _summary(out, [f.name for f in folders])
         print(f"summary: {sum(r['exit'] == 0 for r in rows)} of {len(folders)} captures fitted; {out / 'summary.md'}")
     return 0 if failed == 0 else 4
+
+
+def add_batch_command(sub, main: Callable[[list[str]], int]) -> None:
+    """The `batch` subcommand on an argparse subparsers object; `main(argv)` runs one reconstruction."""
+    import argparse
+
+    b = sub.add_parser("batch", help="reconstruct every capture of a folder (images/, masks/, a camera file each)",
+                       epilog="options after CAPTURES are those of `jaxgenus reconstruct` (--genus, --option, ...)")
+    b.add_argument("captures", help="a folder of capture subfolders")
+    b.add_argument("--out", required=True, help="output folder: OUT/NAME/mesh.obj, OUT/summary.md")
+    b.add_argument("--num-processes", type=int, default=1, metavar="N", help="N processes share the captures")
+    b.add_argument("--process-id", type=int, default=0, metavar="I", help="this process takes every N-th from I")
+    b.add_argument("--jobs", type=int, default=1, metavar="K",
+                   help="K captures side by side, each in a worker process with its share of the GPUs")
+    b.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)  # a --jobs worker: no summary
+    b.set_defaults(run=lambda args: run_batch(Path(args.captures), Path(args.out), list(args.rest), main,
+                                              num_processes=args.num_processes, process_id=args.process_id,
+                                              jobs=args.jobs, summary=not args.worker))

@@ -33,8 +33,15 @@ def test_reconstruct_refuses_bad_genus_and_an_output_that_overwrites_an_input(tm
     assert err.count("\n") == 1 and "no_such_setting" in err
     assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "learning_rate"]) == 1
     assert "NAME=VALUE" in capsys.readouterr().err
-    assert main(args + ["--out", str(tmp_path / "r.obj"), "--downsample", "0"]) == 1
-    assert "downsample" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--downsample", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: --downsample")
+    # an output that cannot be written is refused before any work (exit 2), naming --out
+    (tmp_path / "a_file").write_text("x")
+    for out in (tmp_path / "a_file" / "x.obj", tmp_path / "a_file" / "deeper" / "x.obj", tmp_path / "masks"):
+        assert main(args + ["--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.startswith("error: --out"), err
 
 
 def test_cli_settings_map_onto_the_nested_options():

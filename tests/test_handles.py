@@ -82,18 +82,26 @@ def test_open_handles_rejects_bad_input(plate_scene):
         jg.open_handles(fit_v[:, :2], fit_f, cams, targets, 1)
 
 
-def test_reconstruct_takes_the_hidden_handles_from_the_images_in_user_units():
-    """End to end, in millimetres off the origin: the run fits the hull's genus, opens the
-    plate's holes where the images show them and records them in the user's units."""
-    import jax
-
+@pytest.fixture(scope="module")
+def plate_in_mm():
+    """The covered plate in millimetres off the origin, 24 ray-cast normal maps of 128^2:
+    `(truth, cams, images, scale, shift)`."""
     v, f, genus = covered_plate()
     scale, shift = 250.0, np.array([100.0, -30.0, 40.0])
     truth = jg.Mesh.from_numpy((v * scale + shift).astype(np.float32), f.astype(np.int32))
     unit = jg.sphere_cameras(24, radius=3.0, fov_deg=40.0, resolution=128)
     eyes = -np.einsum("nji,nj->ni", np.asarray(unit.rotation), np.asarray(unit.translation))
     cams = jg.look_at(eyes * scale + shift, shift, (0.0, 1.0, 0.0), fov_deg=40.0, resolution=128)
-    images = raycast(cams, truth)
+    return truth, cams, raycast(cams, truth), scale, shift
+
+
+def test_reconstruct_takes_the_hidden_handles_from_the_images_in_user_units(plate_in_mm):
+    """End to end, in millimetres off the origin: the run fits the hull's genus, opens the
+    plate's holes where the images show them and records them in the user's units."""
+    import jax
+
+    truth, cams, images, scale, shift = plate_in_mm
+    genus = 4
     opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=60)
     rec = jg.reconstruct(images, cams, genus, targets="normals", options=opts, key=jax.random.key(0))
     sources = [h["source"] for h in rec.history["handles"]]
@@ -130,3 +138,93 @@ def test_a_long_tunnel_no_silhouette_shows_and_the_holes_into_it_are_opened():
     mesh = jg.Mesh.from_numpy(cut_v.astype(np.float32), cut_f.astype(np.int32))
     place = jg.metrics.handle_placement(truth, mesh, resolution=128, genus=4)
     assert place.object_resolved and place.placed, place
+
+
+def test_hole_tests_open_as_many_holes_as_the_images_confirm(plate_scene):
+    """No count: every hole the images show is opened (the plate's three), none where they show
+    none, and every test is recorded with the views' votes."""
+    fit_v, fit_f = plate_scene["fit"]
+    found = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"])
+    assert [r["cut"] for r in found.opened] == ["hole"] * 3, found.opened
+    assert jg.genus(jg.Mesh.from_numpy(found.vertices, found.faces.astype(np.int32))) == 4
+    kept = [t for t in found.tested if t["kept"]]
+    assert len(kept) == 3 and all(t["change"] < 0 and t["gain"] > t["rise"] for t in kept)
+    assert all(t["change"] >= 0 for t in found.tested if not t["kept"])
+    assert 0.0 <= found.unexplained < min(t["misfit"] for t in kept)
+    none = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"])
+    assert none.opened == [] and len(none.faces) == len(fit_f)
+    with pytest.raises(ValueError, match="count"):
+        jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], -2)
+
+
+def test_the_estimate_counts_confirmed_holes_and_states_its_doubt():
+    """`images_estimate` on hand-made test records: confirmed holes add to the hull's genus and
+    the images decide; a rejected hole that some views liked keeps agreement below 1 and one
+    more handle plausible; no test: the hull's estimate as it is."""
+    from jaxgenus.pipeline import GenusEstimate, HoleTests
+    from jaxgenus.pipeline._start_stage import images_estimate
+
+    hull = GenusEstimate(1, 1.0, (), (1,))
+    nothing = images_estimate(hull, HoleTests(None, None, [], []))
+    assert (nothing.genus, nothing.agreement, nothing.plausible, nothing.cue) == (1, 1.0, (1,), "silhouettes")
+
+    def test(kept, gain, rise):
+        return {"centre": [0.0, 0.0, 0.0], "kept": kept, "change": rise - gain, "better": 1, "worse": 1,
+                "gain": gain, "rise": rise, "misfit": 0.1}
+
+    two = images_estimate(hull, HoleTests(None, None, [{}, {}], [test(True, 0.09, 0.01), test(True, 0.08, 0.0)]),
+                          lambda p: p * 2.0 + 1.0)
+    assert (two.genus, two.cue) == (3, "images") and two.plausible == (1, 2, 3)
+    assert two.agreement == pytest.approx(0.9) and two.holes[0]["centre"] == [1.0, 1.0, 1.0]
+    doubt = images_estimate(hull, HoleTests(None, None, [], [test(False, 0.03, 0.05)]))
+    assert doubt.genus == 1 and doubt.agreement == pytest.approx(0.625) and doubt.plausible == (1, 2)
+    # half the fit's misfit on one patch that no cut explains: the estimate is at most half sure
+    open_patch = images_estimate(hull, HoleTests(None, None, [], [test(False, 0.0, 0.05)], 0.5))
+    assert open_patch.genus == 1 and open_patch.agreement == pytest.approx(0.5) and open_patch.plausible == (1, 2)
+
+
+def test_without_a_genus_the_holes_the_images_show_are_counted_and_opened(plate_in_mm):
+    """The covered plate (genus 4; its holes no silhouette shows) in millimetres off the origin,
+    genus left out: the run fits the hull's genus, confirms the three holes in the normal images,
+    estimates 4 (decided by the images, agreement below 1) and opens them where they are (and the
+    tunnel under them when no silhouette shows it either);
+    `genus_estimate` gives the same answer through the same code."""
+    import jax
+
+    truth, cams, images, scale, shift = plate_in_mm
+    genus = 4
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=60)
+    lines = []
+    rec = jg.reconstruct(images, cams, options=opts, key=jax.random.key(0), log=lines.append)
+    est = rec.history["genus_estimate"]
+    assert rec.genus == 4 and (est.genus, est.cue) == (4, "images"), (rec.genus, est)
+    assert 0.0 < est.agreement < 1.0 and 4 in est.plausible
+    assert any("decided by the images" in line for line in lines), lines
+    assert rec.history["start"] == "fit+images", rec.history["start"]
+    sources = [h["source"] for h in rec.history["handles"]]
+    assert sources.count("images") + sources.count("hull") == 4 and sources.count("images") >= 3, sources
+    true_centres = np.array([[0.5, 0.6, 0.62], [1.0, 0.6, 0.62], [1.5, 0.6, 0.62]]) - [1.0, 0.6, 0.31]
+    true_centres = true_centres * scale / np.linalg.norm([1.0, 0.6, 0.31]) + shift
+    kept = np.array([h["centre"] for h in est.holes if h["kept"]])
+    assert len(kept) == sources.count("images")
+    # every one of the plate's three holes was confirmed where it is (user units)
+    assert np.max(np.min(np.linalg.norm(true_centres[:, None] - kept[None], axis=-1), axis=1)) < 0.13 * scale
+    place = jg.metrics.handle_placement(truth, rec.mesh, resolution=128, genus=4)
+    assert place.placed, place
+    alone = jg.genus_estimate(images, cams, options=opts, key=jax.random.key(0))
+    assert (alone.genus, alone.agreement, alone.plausible, alone.cue) == (est.genus, est.agreement, est.plausible,
+                                                                          est.cue)
+
+
+def test_the_verdict_names_the_holes_a_result_lacks(plate_scene):
+    """A result without the plate's holes against images of them: the topology check says it lacks
+    holes, and where; against images without holes it says nothing (no false alarm)."""
+    from jaxgenus.pipeline._start_stage import CHECK_TRIES, holes_not_had
+
+    fit_v, fit_f = plate_scene["fit"]
+    tests = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], max_tries=CHECK_TRIES)
+    why = holes_not_had(tests, 1, lambda p: p * 10.0)
+    assert why.startswith("the images show 3 holes that the result (genus 1) does not have"), why
+    assert "genus may be 4" in why
+    clean = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"], max_tries=CHECK_TRIES)
+    assert holes_not_had(clean, 1) == ""

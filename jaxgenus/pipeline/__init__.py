@@ -2,7 +2,14 @@
 cycles, the verdict and the typed run record; built-in scenes. Depends on every layer below.
 """
 
-from jaxgenus.pipeline._handles import HandleCandidate, handle_candidates, normal_image_loss, open_handles
+from jaxgenus.pipeline._handles import (
+    HandleCandidate,
+    HoleTests,
+    handle_candidates,
+    hole_tests,
+    normal_image_loss,
+    open_handles,
+)
 from jaxgenus.pipeline._history import (
     CycleRecord,
     GenusEstimate,
@@ -21,6 +28,7 @@ __all__ = [
     "GenusEvidence",
     "HandleCandidate",
     "HandleRecord",
+    "HoleTests",
     "History",
     "ReconstructOptions",
     "Reconstruction",
@@ -28,6 +36,7 @@ __all__ = [
     "builtin_scene",
     "genus_estimate",
     "handle_candidates",
+    "hole_tests",
     "normal_image_loss",
     "open_handles",
     "reconstruct",

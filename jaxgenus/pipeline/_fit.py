@@ -25,7 +25,7 @@ from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
 from jaxgenus.rendering import LIGHTING_SHAPES
 
-__all__ = ["FitIndex", "fit"]
+__all__ = ["FitIndex", "estimate_warnings", "fit"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,11 +59,11 @@ def _result_genus(mesh: Mesh) -> int:
         return -1
 
 
-def _estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
+def estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
     if estimate is None or estimate.agreement >= 0.5:
         return []
-    return [f"the genus {estimate.genus} was estimated at a low agreement ({estimate.agreement:.0%} of the "
-            f"visual hulls' grids; plausible: {list(estimate.plausible)}): give the genus if you know it"]
+    return [f"the genus {estimate.genus} was estimated at a low agreement ({estimate.agreement:.0%}, decided by the "
+            f"{estimate.cue}; plausible: {list(estimate.plausible)}): give the genus if you know it"]
 
 
 def _device_warnings(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[str]:
@@ -100,7 +100,7 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
         resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop,
                      "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],
         devices=1 if levels[0].valid is None else int(levels[0].valid.sharding.mesh.size),
-        ok=verdict.ok, warnings=(verdict.warnings + _estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
+        ok=verdict.ok, warnings=(verdict.warnings + estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
                                  + _device_warnings(setup, options, levels) + list(setup.notes)),
     )
 

@@ -38,10 +38,11 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from jaxgenus.geometry import Cameras
-from jaxgenus.geometry import Mesh
+from jaxgenus.geometry import Mesh, capacity_bucket
 from jaxgenus.rendering import render
 
-__all__ = ["HandleCandidate", "handle_candidates", "normal_image_loss", "open_handles"]
+__all__ = ["HandleCandidate", "HoleTests", "handle_candidates", "hole_tests", "normal_image_loss", "open_handles",
+           "view_losses"]
 
 
 class HandleCandidate(NamedTuple):
@@ -49,7 +50,8 @@ class HandleCandidate(NamedTuple):
 
     `score`: the patch's area weighted by the fraction of the views in which it
     disagrees with the target normals; `points`: the patch's vertices `(K, 3)` (its
-    shape, for a tunnel's cross-section).
+    shape, for a tunnel's cross-section); `misfit`: the share of the fit's whole normal
+    misfit (`1 - cos` summed over every view's pixels) that lies on the patch.
     """
 
     centre: np.ndarray
@@ -57,10 +59,12 @@ class HandleCandidate(NamedTuple):
     radius: float
     score: float
     points: np.ndarray | None = None
+    misfit: float = 0.0
 
 
 def _render_normals(v, f, cams: Cameras) -> np.ndarray:
-    mesh = Mesh.from_numpy(np.asarray(v, np.float32), np.asarray(f, np.int32))
+    # padded to a capacity bucket: every cut has its own face count, and one compiled render serves many
+    mesh = Mesh.from_numpy(np.asarray(v, np.float32), np.asarray(f, np.int32), capacity=capacity_bucket(len(f)))
     return np.array(render(mesh, cams, channels=("alpha", "normal", "depth")))
 
 
@@ -68,14 +72,21 @@ def _cosine(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return (a * b).sum(-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1) + 1e-9)
 
 
+def view_losses(vertices, faces, cams: Cameras, targets) -> np.ndarray:
+    """Per view `(N,)`: the mean `1 - cos` between rendered and target normals over the target's
+    pixels plus the mean absolute alpha difference (`normal_image_loss` is their mean)."""
+    out = _render_normals(vertices, faces, cams)
+    t = np.asarray(targets, np.float32)
+    cos = _cosine(2.0 * t[..., :3] - 1.0, out[..., 1:4])
+    return (np.mean(np.where(t[..., 3] > 0.5, 1.0 - cos, 0.0), axis=(1, 2))
+            + np.mean(np.abs(out[..., 0] - t[..., 3]), axis=(1, 2)))
+
+
 def normal_image_loss(vertices, faces, cams: Cameras, targets) -> float:
     """Mean `1 - cos` between rendered and target normals over the target's pixels
     plus the mean absolute alpha difference, over all views. `targets`: `(N, H, W, 4)`
     normal images (RGB `(n + 1) / 2`, composited over a zero normal, A coverage)."""
-    out = _render_normals(vertices, faces, cams)
-    t = np.asarray(targets, np.float32)
-    cos = _cosine(2.0 * t[..., :3] - 1.0, out[..., 1:4])
-    return float(np.mean(np.where(t[..., 3] > 0.5, 1.0 - cos, 0.0)) + np.mean(np.abs(out[..., 0] - t[..., 3])))
+    return float(np.mean(view_losses(vertices, faces, cams, targets)))
 
 
 def _pixel_points(cams: Cameras, depth: np.ndarray) -> np.ndarray:
@@ -115,15 +126,20 @@ def handle_candidates(vertices, faces, cams: Cameras, targets, *, angle_deg: flo
     v, f, t = _checked(vertices, faces, cams, targets)
     out = _render_normals(v, f, cams)
     both = (t[..., 3] > 0.5) & (out[..., 0] > 0.5)
-    bad = both & (_cosine(2.0 * t[..., :3] - 1.0, out[..., 1:4]) < np.cos(np.radians(angle_deg)))
+    miss = np.where(both, 1.0 - _cosine(2.0 * t[..., :3] - 1.0, out[..., 1:4]), 0.0)
+    bad = both & (miss > 1.0 - np.cos(np.radians(angle_deg)))
     points = _pixel_points(cams, out[..., 4] / np.maximum(out[..., 0], 1e-6))
     tree = cKDTree(v)
     seen = np.zeros(len(v))
     votes = np.zeros(len(v))
+    misfit = np.zeros(len(v))
     for k in range(len(t)):  # per view, so a vertex counts the views (not the pixels) that see it
-        for mask, acc in ((both[k], seen), (bad[k], votes)):
-            if mask.any():
-                acc[np.unique(tree.query(points[k][mask])[1])] += 1.0
+        if both[k].any():
+            nearest = tree.query(points[k][both[k]])[1]
+            seen[np.unique(nearest)] += 1.0
+            votes[np.unique(nearest[bad[k][both[k]]])] += 1.0
+            np.add.at(misfit, nearest, miss[k][both[k]])
+    misfit /= max(float(misfit.sum()), 1e-12)
     fraction = votes / np.maximum(seen, 1.0)
     flag = (fraction >= min_fraction) & (seen >= min_views)
     edges = np.unique(np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1), axis=0)
@@ -145,7 +161,7 @@ def handle_candidates(vertices, faces, cams: Cameras, targets, *, angle_deg: flo
         a = float(area[ids].sum())
         found.append(HandleCandidate(centre=v[ids].mean(0), normal=nrm / max(np.linalg.norm(nrm), 1e-12),
                                      radius=float(np.sqrt(a / np.pi)), score=float((fraction[ids] * area[ids]).sum()),
-                                     points=v[ids]))
+                                     points=v[ids], misfit=float(misfit[ids].sum())))
     return sorted(found, key=lambda h: -h.score)
 
 
@@ -215,6 +231,32 @@ def _tunnel_pairs(candidates: list[HandleCandidate]) -> list[tuple[int, int]]:
     return sorted(pairs, key=lambda p: -(candidates[p[0]].score + candidates[p[1]].score))
 
 
+#: Candidates tested when `hole_tests` opens as many holes as the images confirm: each costs up to
+#: 60 booleans and a render of every view (and each pair of them a tunnel test), so only the
+#: strongest; the holes an object shows are the strongest candidates (docs/hidden_handles.md).
+UNBOUNDED_TRIES = 16
+
+
+class HoleTests(NamedTuple):
+    """What `hole_tests` found: the cut surface, the cuts kept and every cut tested.
+
+    `opened`: per kept cut, a record as `open_handles` returns it. `tested`: per candidate
+    tested with at least one cut that adds exactly one handle, `{"centre", "kept", "change",
+    "better", "worse", "gain", "rise", "misfit"}`: the best cut's relative change of the image loss
+    (negative: lower), the number of views in which it lowered and raised the loss, and the sums
+    of those drops and rises (relative to the loss), the candidate's `misfit` share. A real hole lowers it in the views that see
+    the hole; a cut where there is none shows background or a wall in some views and raises it
+    there. `unexplained`: the largest share of the fit's normal misfit on one candidate patch
+    that no kept cut explains (tested or not): a disagreement the tests leave open.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    opened: list
+    tested: list
+    unexplained: float = 0.0
+
+
 def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tries: int | None = None,
                  depths=None):
     """Open up to `count` handles where the images show holes (module doc).
@@ -226,43 +268,73 @@ def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tri
     disc of its cross-section's area) or `"hole"`. The `max_tries` strongest candidates are used (default
     `2 count + 4`); `depths` are the hole depths tried (default 0.05 to 1.0).
     """
+    if isinstance(count, bool) or int(count) != count or count < 0:
+        raise ValueError(f"count: expected a number of handles >= 0, got {count!r}")
+    tests = hole_tests(vertices, faces, cams, targets, int(count), max_tries=max_tries, depths=depths)
+    return tests.vertices, tests.faces, tests.opened
+
+
+def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None, *,
+               max_tries: int | None = None, depths=None, min_radius: float = 0.0) -> HoleTests:
+    """Test cuts where the images show holes and keep those that lower the image loss (module
+    doc), up to `count` (None: as many as the images confirm). The `max_tries` strongest
+    candidates are tested (default `2 count + 4`; `UNBOUNDED_TRIES` when `count` is None).
+    Cuts narrower than `min_radius` (the images' pixel: a hole they cannot show) are not tried."""
     import manifold3d
 
-    if int(count) != count or count < 0:
-        raise ValueError(f"count: expected a number of handles >= 0, got {count!r}")
+    if count is not None and (isinstance(count, bool) or int(count) != count or count < 0):
+        raise ValueError(f"count: expected a number of handles >= 0 or None, got {count!r}")
     v, f, targets = _checked(vertices, faces, cams, targets)
     v = v.astype(np.float32)
     solid = manifold3d.Manifold(manifold3d.Mesh(vert_properties=v, tri_verts=f.astype(np.uint32)))
     if solid.status() != manifold3d.Error.NoError:
         raise ValueError(f"faces: not a closed oriented manifold surface (manifold3d: {solid.status()})")
     if count == 0:
-        return v, f, []
+        return HoleTests(v, f, [], [])
     depths = np.arange(0.05, 1.0001, 0.05) if depths is None else depths
     hole_scales = (1.0, 0.75, 0.5)
-    tries = 2 * count + 4 if max_tries is None else max_tries
-    loss = normal_image_loss(v, f, cams, targets)
-    records = []
-    candidates = handle_candidates(v, f, cams, targets)[:tries]
+    found = handle_candidates(v, f, cams, targets)
+    if max_tries is None:
+        max_tries = UNBOUNDED_TRIES if count is None else 2 * count + 4
+    candidates = found[:max_tries]
+    limit = len(candidates) if count is None else count
+    per_view = view_losses(v, f, cams, targets)
+    loss = float(np.mean(per_view))
+    records, tested = [], []
 
-    def keep(options):
-        """Keep the option `(cut, record)` that lowers the loss most, if any does."""
-        nonlocal solid, v, f, loss
+    def keep(options, centre, misfit):
+        """Keep the option `(cut, record)` that lowers the loss most, if any does; record the test."""
+        nonlocal solid, v, f, loss, per_view
         best = None
         for cut, record in options:
+            if record["radius"] < min_radius:
+                continue
             out = cut.to_mesh()
             cv, cf = np.asarray(out.vert_properties, np.float32)[:, :3], np.asarray(out.tri_verts, np.int64)
-            after = normal_image_loss(cv, cf, cams, targets)
-            if after < (loss if best is None else best[0]):
+            after = view_losses(cv, cf, cams, targets)
+            if best is None or after.mean() < best[0].mean():
                 best = (after, cut, cv, cf, record)
         if best is None:
             return False
-        records.append({**best[4], "loss_before": loss, "loss_after": best[0]})
-        loss, solid, v, f = best[:4]
+        after = best[0]
+        delta = after - per_view
+        tol = 1e-6 * max(loss, 1e-12)
+        kept = float(after.mean()) < loss
+        tested.append({"centre": np.asarray(centre, float).tolist(), "kept": kept,
+                       "change": float(after.mean() / max(loss, 1e-12) - 1.0),
+                       "better": int((delta < -tol).sum()), "worse": int((delta > tol).sum()),
+                       "gain": float(-delta[delta < 0].sum() / max(loss, 1e-12)),
+                       "rise": float(delta[delta > 0].sum() / max(loss, 1e-12)), "misfit": float(misfit)})
+        if not kept:
+            return False
+        records.append({**best[4], "loss_before": loss, "loss_after": float(after.mean())})
+        per_view, solid, v, f = best[:4]
+        loss = float(per_view.mean())
         return True
 
     used = set()
     for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
-        if len(records) == count:
+        if len(records) == limit:
             break
         if i in used or j in used:
             continue
@@ -270,10 +342,10 @@ def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tri
         options = [(cut, {"cut": "tunnel", "centre": a.centre.tolist(), "end": b.centre.tolist(),
                           "normal": ((b.centre - a.centre) / length).tolist(), "radius": half,
                           "depth": length}) for length, half, cut in _tunnel_cut(solid, a, b)]
-        if keep(options):
+        if keep(options, 0.5 * (a.centre + b.centre), a.misfit + b.misfit):
             used.update((i, j))
     for i, cand in enumerate(candidates):
-        if len(records) == count:
+        if len(records) == limit:
             break
         if i in used:
             continue
@@ -283,5 +355,7 @@ def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tri
             if hit is not None:
                 options.append((hit[1], {"cut": "hole", "centre": cand.centre.tolist(), "normal": cand.normal.tolist(),
                                          "radius": cand.radius * scale, "depth": hit[0]}))
-        keep(options)
-    return v, f, records
+        if keep(options, cand.centre, cand.misfit):
+            used.add(i)
+    open_share = max((c.misfit for i, c in enumerate(found) if i not in used), default=0.0)
+    return HoleTests(v, f, records, tested, float(open_share))

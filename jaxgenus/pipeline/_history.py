@@ -69,19 +69,29 @@ class GenusEvidence(_Readable):
 
 @dataclasses.dataclass(frozen=True)
 class GenusEstimate(_Readable):
-    """The genus a run estimated from its silhouettes.
+    """The genus a run estimated from what its images show.
 
     Attributes:
-        genus: the estimate (the most frequent of the grids' persistent genera; ties: the lower).
-        agreement: the share of the grids that have it, in [0, 1].
+        genus: the estimate: the silhouettes' (the most frequent of the visual hull grids'
+            persistent genera; ties: the lower), plus the holes that normal images confirm.
+        agreement: how far the cues agree with it, in [0, 1]: the share of the grids that have
+            the silhouettes' genus, and, where the images' interior was tested, at most the
+            weakest of the hole tests' view votes (`pipeline._start_stage`).
         evidence: one `GenusEvidence` per hull built (every grid and closing).
-        plausible: every genus some grid has (one value when they all agree).
+        plausible: every genus a grid has, the estimate, and the genera the hole tests leave
+            open (one value when every cue agrees).
+        cue: what decided: `"silhouettes"`, or `"images"` when holes that no silhouette shows
+            were confirmed in the normal images.
+        holes: one record per hole hypothesis tested in the images (`pipeline.hole_tests`):
+            `{"centre", "kept", "change", "better", "worse"}`, centre in the user's units.
     """
 
     genus: int
     agreement: float
     evidence: tuple[GenusEvidence, ...]
     plausible: tuple[int, ...] = ()
+    cue: str = "silhouettes"
+    holes: tuple[Mapping[str, Any], ...] = ()
 
 
 @dataclasses.dataclass(frozen=True)

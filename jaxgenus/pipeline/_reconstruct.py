@@ -26,12 +26,15 @@ import jax
 import numpy as np
 
 from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, fit_photo_depth, phong_subdivision
-from jaxgenus.pipeline._fit import FitIndex, fit
-from jaxgenus.pipeline._history import GenusEstimate, History, Reconstruction
+from jaxgenus.pipeline._fit import FitIndex, estimate_warnings, fit
+from jaxgenus.pipeline._handles import HoleTests, hole_tests
+from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._setup import Setup, prepare
-from jaxgenus.pipeline._start import Start
-from jaxgenus.pipeline._start_stage import first_start, refit_start
+from jaxgenus.pipeline._start import Start, remeshed_start
+from jaxgenus.pipeline._start_stage import (CHECK_TRIES, estimate_line, evidence_level, evidence_pixel,
+                                             first_edge_length, first_start,
+                                             holes_not_had, image_handle_records, images_estimate, refit_start)
 
 _DEPTH_MAX_FACES = 1 << 20
 
@@ -50,15 +53,81 @@ def _check_arguments(genus, options):
 
 
 def genus_estimate(images, cams: Cameras, *, targets: str | None = None,
-                   options: ReconstructOptions = ReconstructOptions(), log=None, views=None) -> GenusEstimate:
-    """The genus the silhouettes of `images` show (what `reconstruct(images, cams)` estimates
-    when no genus is given): a `GenusEstimate` with its `agreement` over the visual hull's grids
-    and the `plausible` genera. Holes no silhouette shows are not counted. Arguments as in
-    `reconstruct`; host-side, no optimization."""
+                   options: ReconstructOptions = ReconstructOptions(), key=None, log=None, views=None,
+                   region=None) -> GenusEstimate:
+    """The genus `images` show: what `reconstruct(images, cams)` estimates when no genus is given,
+    through the same code. A `GenusEstimate`: the silhouettes' visual hull's genus and, for normal
+    maps, the holes no silhouette shows that the images confirm (a fit at the hull's genus and a
+    cut tested at each place it disagrees with the images the way a hole does; `pipeline._start_stage`),
+    with the `agreement` of the cues, the `plausible` genera and the `cue` that decided. Arguments
+    as in `reconstruct`. Silhouettes and photos: host-side, no optimization; normal maps: one fit."""
     if not isinstance(options, ReconstructOptions):
         raise ValueError(f"options must be a ReconstructOptions, got {type(options).__name__}")
-    return prepare(images, cams, None, targets, options, log if log is not None else (lambda line: None),
-                   views).estimate
+    say = log if log is not None else (lambda line: None)
+    setup = prepare(images, cams, None, targets, options, say, views, region)
+    if not _reads_interior(setup, None):
+        return setup.estimate
+    t0 = time.perf_counter()
+    key = jax.random.key(0) if key is None else key
+    setup, _, rec = _first_fit(images, cams, setup, key, FitIndex(0, 1), t0, None, say, views, region)
+    return _with_holes(setup, rec, key, FitIndex(0, 1), t0, None, say, estimate_only=True)[0].estimate
+
+
+def _reads_interior(setup: Setup, genus) -> bool:
+    """Whether a run estimates the genus from the images' interior too (normal maps, no genus given)."""
+    return (genus is None and setup.targets.kind == "normals" and setup.options.hidden_handles == "images"
+            and setup.options.start != "sphere")
+
+
+def _first_fit(images, cams, setup: Setup, key, index: FitIndex, t0: float, callback, say, views, region):
+    """`(setup, start, rec)`: the first fit of a run, from its first start."""
+    def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
+        return reconstruct(images, cams, g, targets=setup.targets.kind,
+                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False,
+                                                       fit_outline=False, fit_photo_depth=False),
+                           key=key, views=views, region=region)
+
+    start = first_start(setup, fit_genus, say)
+    say(_start_line(start, setup.genus, time.perf_counter() - t0))
+    return setup, start, fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
+
+
+def _with_holes(setup: Setup, rec: Reconstruction, key, index: FitIndex, t0: float, callback, say, *,
+                estimate_only: bool = False) -> tuple[Setup, Reconstruction]:
+    """The estimate completed from the normal images' interior (`pipeline._start_stage`) and, when they
+    confirm holes the fit at the hull's genus lacks, a fit from that fit with the holes cut."""
+    hull, t1, frame = setup.estimate, time.perf_counter(), setup.frame
+    if not rec.genus_ok:
+        say("genus: the fit at the visual hull's genus has another genus; the images' interior was not tested")
+        return setup, rec
+    v, f = rec.mesh.to_numpy()
+    v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
+    try:
+        tests = hole_tests(v, f, *evidence_level(setup), min_radius=evidence_pixel(setup))
+    except ValueError:  # not a manifold solid to cut
+        tests = HoleTests(v, f, [], [])
+    est = images_estimate(hull, tests, lambda p: p * frame.scale + frame.centre)
+    say(estimate_line(hull, est, time.perf_counter() - t1))
+    setup = dataclasses.replace(setup, genus=est.genus, estimate=est)
+    if estimate_only:
+        return setup, rec
+    if not tests.opened:
+        warnings = [w for w in rec.history.warnings if w not in estimate_warnings(hull)] + estimate_warnings(est)
+        return setup, dataclasses.replace(rec, history=dataclasses.replace(rec.history, genus_estimate=est,
+                                                                           warnings=warnings))
+    edge = first_edge_length(setup.options) * setup.pixel
+    cut = Mesh.from_numpy(np.asarray(tests.vertices, np.float32), np.asarray(tests.faces, np.int32))
+    mesh = remeshed_start(cut, est.genus, edge, setup.options)
+    if mesh is None:
+        why = (f"the images show {len(tests.opened)} hole(s) the result does not have (genus {hull.genus}; "
+               f"estimated {est.genus}), but the cut surface could not be remeshed into a start: give the genus")
+        say(f"genus: {why}")
+        history = dataclasses.replace(rec.history, genus_estimate=est, ok=False, warnings=rec.history.warnings + [why])
+        return setup, dataclasses.replace(rec, history=history)
+    handles = (HandleRecord("hull"),) * hull.genus + image_handle_records(tests.opened, frame)
+    start = Start(mesh, "fit+images", rec.history.hull_grid, 0, handles)
+    say(_start_line(start, setup.genus, time.perf_counter() - t0))
+    return setup, fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
 
 
 def reconstruct(
@@ -81,10 +150,11 @@ def reconstruct(
             [0, 1] whose A is the silhouette and whose RGB is either world normals
             `(n + 1) / 2` (what `render_targets` produces) or a photo.
         cams: a `Cameras` with N views of the images' size, in any units and placement.
-        genus: the object's genus (int >= 0), or None to estimate it from the
-            silhouettes' visual hull (`history["genus_estimate"]`, a `GenusEstimate` with
-            the agreement of its grids). Holes no silhouette shows are missed and carving
-            can add spurious handles: give the genus when you know it.
+        genus: the object's genus (int >= 0), or None to estimate it from the images
+            (`history["genus_estimate"]`, a `GenusEstimate`; `genus_estimate` alone gives the
+            same): the silhouettes' visual hull and, for normal maps, the holes no silhouette
+            shows that the images confirm after a first fit at the hull's genus. Give the
+            genus when you know it.
         targets: what RGBA images hold: `"normals"`, `"photo"` (fitted through
             Lambertian shading with a per-vertex albedo and an unknown distant light,
             both estimated: `Reconstruction.albedo`, `history["lighting"]`) or
@@ -120,21 +190,35 @@ def reconstruct(
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
-    def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
-        return reconstruct(images, cams, g, targets=setup.targets.kind,
-                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False,
-                                                       fit_outline=False, fit_photo_depth=False),
-                           key=key, views=views, region=region)
-
-    start = first_start(setup, fit_genus, say)
-    say(_start_line(start, setup.genus, time.perf_counter() - t0))
-    rec = fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
+    setup, start, rec = _first_fit(images, cams, setup, key, index, t0, callback, say, views, region)
+    if _reads_interior(setup, genus):
+        setup, rec = _with_holes(setup, rec, key, index, t0, callback, say)
     if n_refits and rec.genus_ok:
         rec = _refits(rec, setup, options, n_refits, key, callback, say)
+    if setup.targets.kind == "normals" and rec.genus_ok:
+        rec = _topology_checked(rec, setup, say)
     if setup.options.fill_unseen and setup.targets.kind == "photo":
         rec = _filled(rec, cams, say)
     rec = _subdivided(rec, say) if setup.options.subdivide else rec
     return _at_full_size(rec, setup, say)
+
+
+def _topology_checked(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
+    """`rec`, not ok when its normal images show holes it does not have (`pipeline._start_stage.holes_not_had`)."""
+    t0, frame = time.perf_counter(), setup.frame
+    v, f = rec.mesh.to_numpy()
+    v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
+    try:
+        tests = hole_tests(v, f, *evidence_level(setup), max_tries=CHECK_TRIES, min_radius=evidence_pixel(setup))
+    except ValueError:  # not a manifold solid to cut: nothing to test
+        return rec
+    why = holes_not_had(tests, rec.genus, lambda p: p * frame.scale + frame.centre)
+    say(f"topology: {why or 'no cut at the strongest disagreements lowers the image loss'} "
+        f"({len(tests.tested)} tested, {time.perf_counter() - t0:.0f}s)")
+    if not why:
+        return rec
+    return dataclasses.replace(rec, history=dataclasses.replace(rec.history, ok=False,
+                                                                warnings=rec.history.warnings + [why]))
 
 
 def _filled(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
