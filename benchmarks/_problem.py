@@ -18,4 +18,4 @@ def stretched_fit(mesh, views: int, resolution: int):
     target = jg.Mesh.from_numpy(v * np.array([1.2, 0.8, 0.9]), f, capacity=(mesh.vertex_capacity, mesh.face_capacity))
     images = jg.render(target, cams, channels=("alpha", "normal"))
     targets = jnp.concatenate([(images[..., 1:] + 1.0) / 2.0, images[..., :1]], axis=-1)
-    return cams, targets, jg.plan_render(mesh, cams, face_margin=1.5)
+    return cams, targets, jg.rendering.plan_render(mesh, cams, face_margin=1.5)

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The checks a GPU session runs in one call (docs/reconstruction.md, "On an H200"):
+# The checks a GPU session runs in one call (docs/results.md, "On an H200"):
 #
 #   bash benchmarks/device_check.sh OUT [CAPTURE_DIR] [SECONDS]
 #

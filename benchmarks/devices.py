@@ -36,7 +36,7 @@ ONE = textwrap.dedent(
     targets = jg.render_targets(jg.builtin_scene("torus"), cams)
     mesh = jg.genus_primitive(1, n_faces=4000)
     mesh = jg.Mesh.from_numpy(*(np.asarray(a) for a in mesh.to_numpy()), capacity=8192)
-    state = jg.init_optimizer_state(mesh, jax.random.key(0))
+    state = jg.optim.init_optimizer_state(mesh, jax.random.key(0))
     opts = jg.OptimizeOptions(views_per_step=8)
     valid = None
     if d > 1:
@@ -45,7 +45,7 @@ ONE = textwrap.dedent(
         cams, targets, valid = jg.optim.place((cams[order], jnp.asarray(targets)[order], jnp.asarray(valid)), dm, True)
         state = jg.optim.place(state, dm, False)
         opts = jg.OptimizeOptions(views_per_step=8, device_mesh=dm)
-    run = lambda s: jg.optimize_block(s, cams, targets, n_steps=steps, options=opts, valid=valid)
+    run = lambda s: jg.optim.optimize_block(s, cams, targets, n_steps=steps, options=opts, valid=valid)
     t0 = time.perf_counter()
     warm, rec = run(jax.tree.map(jnp.copy, state))
     jax.block_until_ready(warm)

@@ -102,7 +102,7 @@ def run_one(shape: str, albedo: str, targets: str, res: int, views: int, options
         else:
             row["albedo_spread"] = (rec.albedo.std(axis=0) / rec.albedo.mean(axis=0)).tolist()
         row["photo_error_median"] = float(np.median(rec.history["photo_error"]))
-        _, row["light_mean"] = jg.directional_lighting(LIGHT, AMBIENT)
+        _, row["light_mean"] = jg.rendering.directional_lighting(LIGHT, AMBIENT)
     return row
 
 

@@ -97,7 +97,7 @@ def run_cell(n_faces: int, n_views: int, res: int, channels: tuple[str, ...], it
     mesh = jg.Mesh.from_numpy(v, f, capacity=jg.geometry.capacity_bucket(len(f))[1])
     cams = jg.sphere_cameras(n_views, radius=4.5, fov_deg=40.0, resolution=res)
     # "default": what a user writes, render() under jit with no plan; "plan": a plan from the geometry
-    plan = jg.plan_render(mesh, cams, sigma=sigma) if mode == "plan" else None
+    plan = jg.rendering.plan_render(mesh, cams, sigma=sigma) if mode == "plan" else None
     target = jnp.zeros((n_views, res, res, sum(jg.rendering.CHANNEL_SIZES[c] for c in channels)), jnp.float32)
 
     def loss(verts):

@@ -1,6 +1,6 @@
-"""lineax CG (`jg.largesteps_solve`) against a hand-written Jacobi-PCG, alone and inside an optimizer step.
+"""lineax CG (`jg.optim.largesteps_solve`) against a hand-written Jacobi-PCG, alone and inside an optimizer step.
 
-`jg.largesteps_solve` solves `(I + lambda L) x = b` with `lineax.CG` (vmapped over
+`jg.optim.largesteps_solve` solves `(I + lambda L) x = b` with `lineax.CG` (vmapped over
 the 3 coordinate columns, Jacobi preconditioner, warm start). `hand_pcg` below
 is the hand-written Jacobi-preconditioned CG the library used before, with the
 same stopping rule (per column, `||r_c|| <= rtol ||b_c||` by the CG recursion),
@@ -83,10 +83,10 @@ def hand_pcg(laplacian, b, lambda_=19.0, x0=None, *, rtol=1e-6, max_iter=2000):
     k, x, r, _, _ = jax.lax.while_loop(cond, body, (jnp.int32(0), x, r, z, jnp.sum(r * z, axis=0)))
     rel = jnp.max(jnp.where(nonzero, norms(b - matvec(x)) / jnp.where(nonzero, bnorm, 1.0), 0.0))
     finite = jnp.all(jnp.isfinite(bnorm)) & jnp.isfinite(rel)
-    return x, jg.SolveInfo(iterations=k, residual=rel, converged=~jnp.any(active(r)) & finite)
+    return x, jg.optim.SolveInfo(iterations=k, residual=rel, converged=~jnp.any(active(r)) & finite)
 
 
-SOLVERS = {"lineax CG": jg.largesteps_solve, "hand-written PCG": hand_pcg}
+SOLVERS = {"lineax CG": jg.optim.largesteps_solve, "hand-written PCG": hand_pcg}
 
 
 def meshes():
@@ -109,7 +109,7 @@ def timed(fn, reps):
 
 
 def solve_rows(name, mesh, lam, rounds, reps):
-    lap = jg.uniform_laplacian(mesh.faces, mesh.vertex_capacity)
+    lap = jg.geometry.uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     x = mesh.vertices
     n = int(mesh.n_vertices)
     b = jnp.where(mesh.vertex_mask[:, None], x + lam * lap(x), 0.0)
@@ -162,10 +162,10 @@ def step_rows(name, mesh, args):
 
             def run(k):
                 optimize_module.largesteps_solve = SOLVERS[k] if k != "lineax CG" else original
-                state = jg.init_optimizer_state(mesh, jax.random.key(0))
+                state = jg.optim.init_optimizer_state(mesh, jax.random.key(0))
                 t0 = time.perf_counter()
                 _, rec = jax.block_until_ready(
-                    jg.optimize_block(state, cams, targets, n_steps=args.steps, options=opts[k])
+                    jg.optim.optimize_block(state, cams, targets, n_steps=args.steps, options=opts[k])
                 )
                 return (time.perf_counter() - t0) * 1e3 / args.steps, rec
 

@@ -47,7 +47,7 @@ def scipy_matrix(f, n, lam):
 def solver_table(mesh, repeats):
     v, f = mesh.to_numpy()
     n = len(v)
-    lap = jg.uniform_laplacian(mesh.faces, mesh.vertex_capacity)
+    lap = jg.geometry.uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     rng = np.random.default_rng(0)
     x_true = np.asarray(mesh.vertices)
     x_near = x_true.copy()
@@ -55,7 +55,7 @@ def solver_table(mesh, repeats):
     rows = []
     for lam in (1.0, 19.0, 100.0, 1e3, 1e4):
         b = jnp.asarray(x_true + lam * np.asarray(lap(jnp.asarray(x_true))), jnp.float32)
-        solve = jax.jit(lambda b, x0: jg.largesteps_solve(lap, b, lam, x0))
+        solve = jax.jit(lambda b, x0: jg.optim.largesteps_solve(lap, b, lam, x0))
         cold_ms, (_, cold) = best_of(lambda: solve(b, jnp.zeros_like(b)), repeats)
         warm_ms, (_, warm) = best_of(lambda: solve(b, jnp.asarray(x_near)), repeats)
         a = scipy_matrix(f, n, lam)
@@ -91,12 +91,12 @@ def step_table(mesh, args):
                 lambda_=lam, weights=weights, views_per_step=args.views_per_step, render=jg.RenderSettings(plan=plan),
                 learning_rate=3e-2, adam_quantile=1.0,
             )
-            state = jg.init_optimizer_state(mesh, jax.random.key(0))
+            state = jg.optim.init_optimizer_state(mesh, jax.random.key(0))
             t0 = time.perf_counter()
-            state, rec = jax.block_until_ready(jg.optimize_block(state, cams, targets, n_steps=args.steps, options=opts))
+            state, rec = jax.block_until_ready(jg.optim.optimize_block(state, cams, targets, n_steps=args.steps, options=opts))
             first = time.perf_counter() - t0
             t0 = time.perf_counter()
-            state, rec = jax.block_until_ready(jg.optimize_block(state, cams, targets, n_steps=args.steps, options=opts))
+            state, rec = jax.block_until_ready(jg.optim.optimize_block(state, cams, targets, n_steps=args.steps, options=opts))
             ms = (time.perf_counter() - t0) * 1e3 / args.steps
             rec = jax.tree.map(np.asarray, rec)
             rows.append(

@@ -37,15 +37,15 @@ def problem(subdivisions, resolution, n_views):
     cams = jg.sphere_cameras(n_views, radius=3.0, fov_deg=40.0, resolution=resolution)
     images = jg.render(jg.Mesh.from_numpy(v * np.array([1.25, 0.7, 0.9]), f), cams, channels=("alpha", "normal"))
     targets = jnp.concatenate([(images[..., 1:] + 1.0) / 2.0, images[..., :1]], axis=-1)
-    plan = jg.plan_render(mesh, cams, face_margin=1.5)
+    plan = jg.rendering.plan_render(mesh, cams, face_margin=1.5)
     return mesh, cams, targets, plan
 
 
 def run(mesh, cams, targets, plan, steps, **options):
     opts = jg.OptimizeOptions(render=jg.RenderSettings(plan=plan), adam_quantile=1.0, views_per_step=None, **options)
-    state = jg.init_optimizer_state(mesh, jax.random.key(0))
+    state = jg.optim.init_optimizer_state(mesh, jax.random.key(0))
     t0 = time.perf_counter()
-    state, rec = jg.optimize_block(state, cams, targets, n_steps=steps, options=opts)
+    state, rec = jg.optim.optimize_block(state, cams, targets, n_steps=steps, options=opts)
     rec = jax.tree.map(np.asarray, rec)
     seconds = time.perf_counter() - t0
     x = np.asarray(state.mesh.vertices)

@@ -1,15 +1,22 @@
 """jaxgenus: inverse rendering of watertight triangle meshes of any genus, in JAX.
 
-The package is built in layers, one subpackage each, imports pointing down the list:
+    >>> import jaxgenus as jg
+    >>> gt = jg.builtin_scene("torus")
+    >>> cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
+    >>> rec = jg.reconstruct(jg.render_targets(gt, cams), cams, genus=1)  # doctest: +SKIP
+    >>> rec.genus, rec.history["ok"]  # doctest: +SKIP
+    (1, True)
+
+The names here are the ones a user calls. The package is built in layers, one subpackage
+each, imports pointing down the list; each keeps its advanced names public in its own
+`__all__` (kernels, optimizer state, plans, run records):
 
 * `jaxgenus.geometry`: meshes, cameras, topology, operators, energies, primitives, remeshing;
 * `jaxgenus.rendering`: the soft rasterizer and photo shading;
 * `jaxgenus.capture`: images, masks, camera files, pairing, targets, visual hull, frame;
 * `jaxgenus.optim`: the objective and the large-steps optimizer;
-* `jaxgenus.pipeline`: `reconstruct` and its stages.
-
-The public API is flat: what a user calls is re-exported here and listed in `__all__`;
-plumbing (buffer layouts, record keys, capacity buckets) stays in its subpackage.
+* `jaxgenus.pipeline`: `reconstruct` and its stages;
+* `jaxgenus.metrics`: chamfer distance, volume IoU, Hausdorff, ICP, handle placement.
 """
 
 from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, version as _version
@@ -17,95 +24,48 @@ from importlib.metadata import PackageNotFoundError as _PackageNotFoundError, ve
 from jaxgenus import capture, geometry, metrics, optim, pipeline, rendering
 
 from jaxgenus.geometry import (
-    bilaplacian_energy,
     Cameras,
     cameras_from_blender,
     cameras_from_opencv,
     cameras_from_opengl,
     cameras_to_opencv,
-    cameras_to_opengl,
     component_genera,
-    connected_components,
     euler_characteristic,
-    face_normals,
     genus,
     genus_primitive,
-    inversion_penalty,
     is_closed_manifold,
     load_mesh,
     look_at,
     Mesh,
     mesh_report,
-    MeshReport,
     phong_subdivision,
     project,
     remesh,
-    remesh_in_jit,
-    RemeshInfo,
     RemeshOptions,
-    RemeshStatus,
     save_mesh,
     sphere_cameras,
-    Subdivision,
-    uniform_laplacian,
-    UniformLaplacian,
-    vertex_normals,
 )
 from jaxgenus.rendering import (
-    directional_lighting,
-    face_colors,
-    irradiance,
-    lighting_model,
-    plan_render,
-    RasterPlan,
     render,
     render_photo,
-    RenderInfo,
     RenderSettings,
-    static_plan,
-    vertex_colors,
 )
 from jaxgenus.capture import (
     load_cameras,
-    load_region,
     load_images,
-    LoadedImages,
+    load_region,
     pair_images,
     visual_hull,
 )
 from jaxgenus.optim import (
-    Appearance,
-    carving_term,
-    containment_penalty,
-    from_differential,
-    GradientTransformation,
-    image_loss,
-    init_optimizer_state,
-    lambda_from_alpha,
-    largesteps_solve,
     LossWeights,
-    objective,
-    optimize_block,
     OptimizeOptions,
-    OptimizerState,
-    outside_distance,
-    render_channels,
-    SolveInfo,
-    to_differential,
-    uniform_adam,
-    UniformAdamState,
 )
 from jaxgenus.pipeline import (
+    builtin_scene,
     genus_estimate,
     GenusEstimate,
-    HandleRecord,
-    builtin_scene,
-    CycleRecord,
-    handle_candidates,
-    HandleCandidate,
     History,
-    normal_image_loss,
-    open_handles,
     reconstruct,
     Reconstruction,
     ReconstructOptions,
@@ -119,90 +79,44 @@ except _PackageNotFoundError:  # imported from a source tree that was never inst
     __version__ = "0+unknown"
 
 __all__ = [
-    "Appearance",
-    "bilaplacian_energy",
     "builtin_scene",
     "Cameras",
     "cameras_from_blender",
     "cameras_from_opencv",
     "cameras_from_opengl",
     "cameras_to_opencv",
-    "cameras_to_opengl",
-    "carving_term",
     "component_genera",
-    "connected_components",
-    "containment_penalty",
-    "CycleRecord",
-    "directional_lighting",
     "euler_characteristic",
-    "face_colors",
-    "face_normals",
-    "from_differential",
     "genus",
     "genus_estimate",
     "genus_primitive",
     "GenusEstimate",
-    "GradientTransformation",
-    "HandleRecord",
-    "handle_candidates",
-    "HandleCandidate",
     "History",
-    "image_loss",
-    "init_optimizer_state",
-    "inversion_penalty",
-    "irradiance",
     "is_closed_manifold",
-    "lambda_from_alpha",
-    "largesteps_solve",
-    "lighting_model",
     "load_cameras",
-    "load_region",
     "load_images",
     "load_mesh",
-    "LoadedImages",
+    "load_region",
     "look_at",
     "LossWeights",
     "Mesh",
     "mesh_report",
-    "phong_subdivision",
-    "MeshReport",
-    "normal_image_loss",
-    "objective",
-    "open_handles",
-    "optimize_block",
+    "metrics",
     "OptimizeOptions",
-    "OptimizerState",
-    "outside_distance",
     "pair_images",
-    "plan_render",
+    "phong_subdivision",
     "project",
-    "RasterPlan",
     "reconstruct",
     "Reconstruction",
     "ReconstructOptions",
     "remesh",
-    "remesh_in_jit",
-    "RemeshInfo",
     "RemeshOptions",
-    "RemeshStatus",
     "render",
-    "render_channels",
     "render_photo",
     "render_targets",
-    "RenderInfo",
     "RenderSettings",
     "save_mesh",
     "SCENES",
-    "SolveInfo",
     "sphere_cameras",
-    "Subdivision",
-    "static_plan",
-    "to_differential",
-    "uniform_adam",
-    "vertex_colors",
-    "uniform_laplacian",
-    "UniformAdamState",
-    "UniformLaplacian",
-    "vertex_normals",
     "visual_hull",
 ]

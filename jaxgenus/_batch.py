@@ -189,12 +189,12 @@ def add_batch_command(sub, main: Callable[[list[str]], int]) -> None:
 
     b = sub.add_parser("batch", help="reconstruct every capture of a folder (images/, masks/, a camera file each)",
                        epilog="options after CAPTURES are those of `jaxgenus reconstruct` (--genus, --option, ...)")
-    b.add_argument("captures", help="a folder of capture subfolders")
-    b.add_argument("--out", required=True, help="output folder: OUT/NAME/mesh.obj, OUT/summary.md")
-    b.add_argument("--num-processes", type=int, default=1, metavar="N", help="N processes share the captures")
-    b.add_argument("--process-id", type=int, default=0, metavar="I", help="this process takes every N-th from I")
+    b.add_argument("captures", help="a folder of capture subfolders (required)")
+    b.add_argument("--out", required=True, help="output folder: OUT/NAME/mesh.obj, OUT/summary.md (required)")
+    b.add_argument("--num-processes", type=int, default=1, metavar="N", help="N processes share the captures (default 1)")
+    b.add_argument("--process-id", type=int, default=0, metavar="I", help="this process takes every N-th from I (default 0)")
     b.add_argument("--jobs", type=int, default=1, metavar="K",
-                   help="K captures side by side, each in a worker process with its share of the GPUs")
+                   help="K captures side by side, each in a worker process with its share of the GPUs (default 1)")
     b.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)  # a --jobs worker: no summary
     b.set_defaults(run=lambda args: run_batch(Path(args.captures), Path(args.out), list(args.rest), main,
                                               num_processes=args.num_processes, process_id=args.process_id,

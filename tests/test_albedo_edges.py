@@ -54,7 +54,7 @@ def test_the_photometric_term_leaves_the_edges_out():
     target = _photo(np.ones((6, 12, 3), np.float32) * np.where(u < 6, 0.3, 0.6)[None, :, None])
     render = jnp.concatenate([target[..., 3:], target[..., :3]], -1)  # (alpha, colour), an exact fit
     smeared = render.at[..., 5:7, 1:].set(0.45)  # the render blends the two sides at the edge, as a face does
-    loss = lambda r, w: float(jg.image_loss(r, target, weights=jg.LossWeights(albedo_edges=w), photo=True))
+    loss = lambda r, w: float(jg.optim.image_loss(r, target, weights=jg.LossWeights(albedo_edges=w), photo=True))
     assert loss(smeared, 0.0) == 0.0
     assert loss(smeared, 1.0) > 0.0 and loss(smeared, 0.5) == pytest.approx(0.5 * loss(smeared, 1.0))  # the default keeps it
     off = render.at[..., 0:2, 1:].set(0.45)  # an error away from the edge still costs

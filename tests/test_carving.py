@@ -21,7 +21,7 @@ def _scene():
 def _carve(mesh, cams, target, x):
     m = jg.Mesh(vertices=x, faces=mesh.faces, n_vertices=mesh.n_vertices, n_faces=mesh.n_faces)
     r = jg.render(m, cams, channels=("alpha", "normal", "depth"))
-    return jg.carving_term(r[..., :4], r[..., 4], target)
+    return jg.optim.carving_term(r[..., :4], r[..., 4], target)
 
 
 def test_carving_term_is_zero_valued_and_still_where_the_normals_agree():
@@ -63,18 +63,18 @@ def test_carving_term_pushes_contradicted_surface_away_from_the_camera():
 def test_objective_carve_term_adds_a_force_not_a_value():
     mesh, cams = _scene()
     target = jg.render_targets(jg.Mesh.from_numpy(0.9 * np.asarray(mesh.vertices), np.asarray(mesh.faces)), cams)
-    plain, t0 = jg.objective(mesh, cams, target, mesh.vertices)
-    carved, t1 = jg.objective(mesh, cams, target, mesh.vertices, weights=jg.LossWeights(carve=1.0))
+    plain, t0 = jg.optim.objective(mesh, cams, target, mesh.vertices)
+    carved, t1 = jg.optim.objective(mesh, cams, target, mesh.vertices, weights=jg.LossWeights(carve=1.0))
     assert "carve" not in t0 and float(t1["carve"]) == 0.0
     assert float(carved) == pytest.approx(float(plain), rel=1e-6)
     sil = jnp.asarray(np.asarray(target)[..., 3:])  # silhouettes have no normals: no carving
-    _, t2 = jg.objective(mesh, cams, sil, mesh.vertices, weights=jg.LossWeights(carve=1.0))
+    _, t2 = jg.optim.objective(mesh, cams, sil, mesh.vertices, weights=jg.LossWeights(carve=1.0))
     assert "carve" not in t2
 
 
 def test_carving_term_checks_shapes_and_options():
     with pytest.raises(ValueError, match="rendered, depth, target"):
-        jg.carving_term(jnp.zeros((1, 4, 4, 4)), jnp.zeros((1, 4, 5)), jnp.zeros((1, 4, 4, 4)))
+        jg.optim.carving_term(jnp.zeros((1, 4, 4, 4)), jnp.zeros((1, 4, 5)), jnp.zeros((1, 4, 4, 4)))
     with pytest.raises(ValueError, match="refit_carve"):
         jg.ReconstructOptions(refit_carve=-1.0)
     assert jg.ReconstructOptions().refit_carve == 1.0

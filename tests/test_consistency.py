@@ -125,7 +125,7 @@ def test_gradient_matches_finite_differences_and_points_to_the_surface(scene, sp
         p64 = jnp.asarray(photos if blur else _smoothed(photos) if not colour else _smoothed(_smoothed(photos)),
                           jnp.float64)  # each channel's cells jump more than their grey level: smoothed twice
         nb = jnp.asarray(table[:, 0])
-        plan = None if splat == "default" else jg.plan_render(m, c64, sigma=0.1)
+        plan = None if splat == "default" else jg.rendering.plan_render(m, c64, sigma=0.1)
         nd = jax.lax.stop_gradient(jg.render(m, c64[nb], channels=("depth", "alpha"), plan=plan))
 
         def f(v, spread=0.0):  # 0: the plain residual (the robust scale is held constant, its gradient not taken)

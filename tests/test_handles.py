@@ -33,7 +33,7 @@ def plate_scene():
 
 def test_candidates_find_the_three_holes(plate_scene):
     fit_v, fit_f = plate_scene["fit"]
-    found = jg.handle_candidates(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"])
+    found = jg.pipeline.handle_candidates(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"])
     v, _, _ = covered_plate()
     scale = 1.0 / np.linalg.norm(np.array([2.0, 1.2, 0.62]) / 2)  # the plate's normalization (see _hidden)
     true_centres = (np.array([[0.5, 0.6, 0.62], [1.0, 0.6, 0.62], [1.5, 0.6, 0.62]]) - [1.0, 0.6, 0.31]) * scale
@@ -51,7 +51,7 @@ def test_candidates_find_the_three_holes(plate_scene):
 
 def test_open_handles_places_the_object_handles(plate_scene):
     fit_v, fit_f = plate_scene["fit"]
-    v, f, opened = jg.open_handles(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], 3)
+    v, f, opened = jg.pipeline.open_handles(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], 3)
     assert len(opened) == 3
     assert all(r["loss_after"] < r["loss_before"] for r in opened)
     mesh = jg.Mesh.from_numpy(v.astype(np.float32), f.astype(np.int32))
@@ -64,7 +64,7 @@ def test_open_handles_places_the_object_handles(plate_scene):
 
 def test_no_holes_in_the_images_opens_none(plate_scene):
     fit_v, fit_f = plate_scene["fit"]
-    v, f, opened = jg.open_handles(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"], 3)
+    v, f, opened = jg.pipeline.open_handles(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"], 3)
     assert opened == []
     assert len(f) == len(fit_f)
 
@@ -73,13 +73,13 @@ def test_open_handles_rejects_bad_input(plate_scene):
     fit_v, fit_f = plate_scene["fit"]
     cams, targets = plate_scene["cams"], plate_scene["holes"]
     with pytest.raises(ValueError, match="targets"):
-        jg.open_handles(fit_v, fit_f, cams, targets[:5], 3)
+        jg.pipeline.open_handles(fit_v, fit_f, cams, targets[:5], 3)
     with pytest.raises(ValueError, match="targets"):
-        jg.open_handles(fit_v, fit_f, cams, targets[..., :3], 3)
+        jg.pipeline.open_handles(fit_v, fit_f, cams, targets[..., :3], 3)
     with pytest.raises(ValueError, match="count"):
-        jg.open_handles(fit_v, fit_f, cams, targets, -1)
+        jg.pipeline.open_handles(fit_v, fit_f, cams, targets, -1)
     with pytest.raises(ValueError, match="vertices"):
-        jg.open_handles(fit_v[:, :2], fit_f, cams, targets, 1)
+        jg.pipeline.open_handles(fit_v[:, :2], fit_f, cams, targets, 1)
 
 
 @pytest.fixture(scope="module")
@@ -130,7 +130,7 @@ def test_a_long_tunnel_no_silhouette_shows_and_the_holes_into_it_are_opened():
     fit_v, fit_f = trimesh.remesh.subdivide_to_size(v0, f0, 0.03)
     cams = jg.sphere_cameras(24, radius=3.0, fov_deg=40.0, resolution=128)
     truth = jg.Mesh.from_numpy(v.astype(np.float32), f.astype(np.int32))
-    cut_v, cut_f, opened = jg.open_handles(fit_v, fit_f, cams, raycast(cams, truth), 4)
+    cut_v, cut_f, opened = jg.pipeline.open_handles(fit_v, fit_f, cams, raycast(cams, truth), 4)
     assert [r["cut"] for r in opened] == ["tunnel", "hole", "hole", "hole"], opened
     tunnel = opened[0]
     axis = np.array([np.cos(np.radians(30.0)), np.sin(np.radians(30.0)), 0.0])  # the tunnel's axis (see _hidden)

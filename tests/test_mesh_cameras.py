@@ -128,7 +128,7 @@ def test_camera_convention_round_trips():
     np.testing.assert_allclose(cv[..., :2] / cv[..., 2:], uv - 0.5, rtol=1e-5, atol=1e-3)
     back = jg.cameras_from_opencv(K, R, t, height=96, width=128)
     np.testing.assert_allclose(np.asarray(jg.project(back, pts)), uv, rtol=1e-5, atol=1e-3)
-    view, fov = jg.cameras_to_opengl(cams)
+    view, fov = jg.geometry.cameras_to_opengl(cams)
     np.testing.assert_allclose(np.asarray(fov), 35.0, rtol=1e-5)
     # OpenGL view: visible points have negative z
     xgl = np.einsum("nij,pj->npi", np.asarray(view[:, :3, :3]), np.asarray(pts)) + np.asarray(view[:, :3, 3])[:, None]

@@ -123,7 +123,7 @@ def _ffi_remesh(mesh, options):
 
 def test_ffi_handler_decodes_the_option_dict():
     mesh = jg.genus_primitive(2)
-    _, _, info = jg.remesh_in_jit(mesh, RemeshOptions())
+    _, _, info = jg.geometry.remesh_in_jit(mesh, RemeshOptions())
     v, f, _, info_empty = _ffi_remesh(mesh, {})  # missing options keep their defaults
     np.testing.assert_array_equal(info_empty, np.stack([getattr(info, n) for n in native.REMESH_INFO_FIELDS]))
     for bad, message in (

@@ -28,3 +28,13 @@ def test_notebook_runs(path, tmp_path, monkeypatch):
         rec = namespace["photo"]
         assert rec.genus == namespace["genus"] and rec.albedo.shape == (len(rec.mesh.to_numpy()[0]), 3)
         assert (tmp_path / "photometric_result.ply").is_file()
+
+
+@pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.name)
+def test_notebook_is_saved_with_its_outputs(path):
+    """A reader sees what each notebook shows without running it: saved outputs, a picture among
+    them, and a file small enough to open in a browser."""
+    cells = json.loads(path.read_text())["cells"]
+    outputs = [o for c in cells if c["cell_type"] == "code" for o in c.get("outputs", [])]
+    assert any("image/png" in o.get("data", {}) for o in outputs), "no saved picture"
+    assert path.stat().st_size < 2_000_000

@@ -32,18 +32,18 @@ def test_lighting_convention_mean_one_and_sh_of_a_directional_light_close_to_exa
     n = _sphere_points()
     rng = np.random.default_rng(0)
     lighting = rng.normal(size=jg.rendering.LIGHTING_SHAPE)
-    e = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(lighting)))
+    e = np.asarray(jg.rendering.irradiance(jnp.asarray(n), jnp.asarray(lighting)))
     assert np.allclose(e.mean(axis=0), 1.0, atol=1e-3)  # every basis function has mean 0
     d = np.array([0.4, 0.8, 0.45])
-    lt, m = jg.directional_lighting(d, 0.25)
+    lt, m = jg.rendering.directional_lighting(d, 0.25)
     exact = (0.25 + 0.75 * np.maximum(n @ (d / np.linalg.norm(d)), 0.0)) / m
-    approx = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(lt)))
+    approx = np.asarray(jg.rendering.irradiance(jnp.asarray(n), jnp.asarray(lt)))
     assert abs(m - (0.25 + 0.75 / 4)) < 1e-12 and abs(exact.mean() - 1.0) < 1e-3
     # order-2 truncation of the clamped cosine: rms 0.06, worst 0.16 of the mean (Ramamoorthi-Hanrahan)
     assert np.sqrt(np.mean((approx[:, 0] - exact) ** 2)) < 0.07
     assert np.abs(approx - exact[:, None]).max() < 0.17
     with pytest.raises(ValueError, match="lighting"):
-        jg.irradiance(jnp.zeros((4, 3)), jnp.zeros((3, 9)))
+        jg.rendering.irradiance(jnp.zeros((4, 3)), jnp.zeros((3, 9)))
 
 
 def test_directional_model_is_exact_for_one_lamp_plus_ambient():
@@ -53,21 +53,21 @@ def test_directional_model_is_exact_for_one_lamp_plus_ambient():
     lamps = [((0.4, 0.8, 0.45), 0.25), ((0.0, 0.0, -1.0), 0.0), ((-1.0, 0.2, 0.1), 0.9)]
     rows = []
     for d, a in lamps:
-        lt, m = jg.directional_lighting(d, a, model="directional")
-        assert lt.shape == (3, 3) and jg.lighting_model(lt) == "directional"
+        lt, m = jg.rendering.directional_lighting(d, a, model="directional")
+        assert lt.shape == (3, 3) and jg.rendering.lighting_model(lt) == "directional"
         rows.append(lt[0])
         exact = (a + (1 - a) * np.maximum(n @ (np.asarray(d) / np.linalg.norm(d)), 0.0)) / m
-        got = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(lt)))
+        got = np.asarray(jg.rendering.irradiance(jnp.asarray(n), jnp.asarray(lt)))
         assert np.abs(got - exact[:, None]).max() < 1e-5 and abs(got.mean() - 1.0) < 1e-3
-    mixed = np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(np.stack(rows))))  # one lamp per channel
+    mixed = np.asarray(jg.rendering.irradiance(jnp.asarray(n), jnp.asarray(np.stack(rows))))  # one lamp per channel
     for c, (d, a) in enumerate(lamps):
-        _, m = jg.directional_lighting(d, a)
+        _, m = jg.rendering.directional_lighting(d, a)
         exact = (a + (1 - a) * np.maximum(n @ (np.asarray(d) / np.linalg.norm(d)), 0.0)) / m
         assert np.abs(mixed[:, c] - exact).max() < 1e-5
-    assert np.allclose(np.asarray(jg.irradiance(jnp.asarray(n[:5]), jnp.zeros((3, 3)))), 1.0)
-    assert jg.lighting_model(np.zeros(jg.rendering.LIGHTING_SHAPE)) == "sh"
+    assert np.allclose(np.asarray(jg.rendering.irradiance(jnp.asarray(n[:5]), jnp.zeros((3, 3)))), 1.0)
+    assert jg.rendering.lighting_model(np.zeros(jg.rendering.LIGHTING_SHAPE)) == "sh"
     with pytest.raises(ValueError, match="model"):
-        jg.directional_lighting((0, 0, 1), 0.2, model="point")
+        jg.rendering.directional_lighting((0, 0, 1), 0.2, model="point")
     with pytest.raises(ValueError, match="options.lighting"):
         jg.ReconstructOptions(lighting="point")
 
@@ -75,12 +75,12 @@ def test_directional_model_is_exact_for_one_lamp_plus_ambient():
 def test_render_photo_matches_shading_of_raycast_normals():
     mesh = jg.builtin_scene("torus")
     cams = jg.sphere_cameras(4, radius=3.0, resolution=48)
-    lt, _ = jg.directional_lighting((0.3, -0.5, 0.8), 0.3)
+    lt, _ = jg.rendering.directional_lighting((0.3, -0.5, 0.8), 0.3)
     albedo = jnp.broadcast_to(jnp.asarray([0.8, 0.5, 0.3]), (mesh.vertex_capacity, 3))
     img = np.asarray(jg.render_photo(mesh, cams, albedo, lt, sigma=0.02, gamma=1e-3))
     ref = raycast(cams, mesh)  # face normal of the first hit, one ray per pixel centre
     n = 2.0 * ref[..., :3] - 1.0
-    shade = np.maximum(np.asarray(jg.irradiance(jnp.asarray(n), jnp.asarray(lt))), 0.0)
+    shade = np.maximum(np.asarray(jg.rendering.irradiance(jnp.asarray(n), jnp.asarray(lt))), 0.0)
     colour = np.array([0.8, 0.5, 0.3]) * shade
     # pixels whose 3x3 neighbourhood is all covered in both (no silhouette or occlusion edge)
     inside = np.ones(ref.shape[:3], bool)
@@ -99,7 +99,7 @@ def test_smooth_shading_matches_raycast_smooth_normals():
     mesh = jg.builtin_scene("torus")
     cams = jg.sphere_cameras(4, radius=3.0, resolution=64)
     d, amb, rho = (0.3, -0.5, 0.8), 0.3, np.array([0.8, 0.5, 0.3])
-    lt, m = jg.directional_lighting(d, amb, model="directional")
+    lt, m = jg.rendering.directional_lighting(d, amb, model="directional")
     albedo = jnp.broadcast_to(jnp.asarray(m * rho, jnp.float32), (mesh.vertex_capacity, 3))
     ref = raycast_lambert(cams, mesh, light_direction=d, ambient=amb, albedo=tuple(rho))
     errs = {}
@@ -126,7 +126,7 @@ def test_photo_loss_gradient_matches_central_differences(model, shading):
         mesh = jg.builtin_scene("torus")
         mesh = jg.Mesh(mesh.vertices.astype(jnp.float64), mesh.faces, mesh.n_vertices, mesh.n_faces)
         cams = jg.sphere_cameras(3, radius=3.0, resolution=32)
-        lt, _ = jg.directional_lighting((0.3, -0.5, 0.8), 0.3, model=model)
+        lt, _ = jg.rendering.directional_lighting((0.3, -0.5, 0.8), 0.3, model=model)
         rng = np.random.default_rng(1)
         v = np.asarray(mesh.vertices)
         albedo = jnp.asarray(0.5 + 0.2 * np.sin(3.0 * v), jnp.float64)
@@ -136,7 +136,7 @@ def test_photo_loss_gradient_matches_central_differences(model, shading):
 
         def f(x, a, light):
             m = jg.Mesh(x, mesh.faces, mesh.n_vertices, mesh.n_faces)
-            return jg.objective(m, cams, target, x, weights=w, appearance=(a, light),
+            return jg.optim.objective(m, cams, target, x, weights=w, appearance=(a, light),
                                 render_settings=jg.RenderSettings(shading=shading))[0]
 
         args = (mesh.vertices, albedo, jnp.asarray(lt, jnp.float64))
@@ -159,11 +159,11 @@ def test_clipped_target_values_are_one_sided():
     tgt = jnp.ones((1, 1, 1, 4))  # a saturated white pixel, covered
     over = jnp.asarray([[[[1.0, 1.3, 1.3, 1.3]]]])  # alpha, rgb: brighter than the clip
     under = jnp.asarray([[[[1.0, 0.7, 0.7, 0.7]]]])
-    loss = lambda r: jg.image_loss(r, tgt, weights=w, photo=True)
+    loss = lambda r: jg.optim.image_loss(r, tgt, weights=w, photo=True)
     assert float(loss(over)) == 0.0 and float(jnp.abs(jax.grad(loss)(over)[..., 1:]).sum()) == 0.0
     assert float(loss(under)) > 0.2
     dark = jnp.asarray([[[[0.0, 0.0, 0.0, 1.0]]]])  # an under-exposed pixel: darker renders cost nothing
-    assert float(jg.image_loss(jnp.asarray([[[[1.0, -0.2, -0.2, -0.2]]]]), dark, weights=w, photo=True)) == 0.0
+    assert float(jg.optim.image_loss(jnp.asarray([[[[1.0, -0.2, -0.2, -0.2]]]]), dark, weights=w, photo=True)) == 0.0
 
 
 def test_render_rejects_bad_face_colors_and_photo_needs_rgba():
@@ -179,9 +179,9 @@ def test_render_rejects_bad_face_colors_and_photo_needs_rgba():
         jg.render(mesh, cams, channels=("alpha", "color"), face_colors=jnp.zeros((mesh.face_capacity, 3)),
                   vertex_colors=jnp.zeros((mesh.vertex_capacity, 3)))
     with pytest.raises(ValueError, match="albedo"):
-        jg.init_optimizer_state(mesh, jax.random.key(0), albedo=(-0.1, 0.5, 0.5))
+        jg.optim.init_optimizer_state(mesh, jax.random.key(0), albedo=(-0.1, 0.5, 0.5))
     with pytest.raises(ValueError, match="photo targets"):
-        jg.render_channels(jnp.zeros((2, 8, 8, 1)), True)
+        jg.optim.render_channels(jnp.zeros((2, 8, 8, 1)), True)
 
 
 def test_save_mesh_writes_albedo_as_vertex_colours(tmp_path):
@@ -248,8 +248,8 @@ def test_photometric_steps_stay_finite_on_extreme_photos(case):
     fit = jnp.asarray(np.concatenate([photos[..., :3] * photos[..., 3:], photos[..., 3:]], -1))
     start = jg.Mesh.from_numpy(*(np.asarray(x) for x in gt.to_numpy()))
     med = float(np.median(photos[..., :3][photos[..., 3] > 0.5]))
-    state = jg.init_optimizer_state(start, jax.random.key(0), albedo=(med, med, med))
-    state, rec = jg.optimize_block(state, cams, fit, n_steps=40, options=jg.OptimizeOptions(learning_rate=1e-2, adam_quantile=1.0,
+    state = jg.optim.init_optimizer_state(start, jax.random.key(0), albedo=(med, med, med))
+    state, rec = jg.optim.optimize_block(state, cams, fit, n_steps=40, options=jg.OptimizeOptions(learning_rate=1e-2, adam_quantile=1.0,
                                                                                                views_per_step=None))
     assert np.all(np.asarray(rec["status"]) != 2)
     assert np.all(np.isfinite(np.asarray(state.mesh.vertices))) and np.all(np.isfinite(np.asarray(state.appearance.albedo)))
@@ -266,8 +266,8 @@ def test_directional_lighting_is_estimated_from_raycast_photos():
     photos = raycast_lambert(cams, gt, light_direction=light, ambient=0.25, albedo=(0.7, 0.6, 0.5))
     fit = jnp.asarray(np.concatenate([photos[..., :3] * photos[..., 3:], photos[..., 3:]], -1))
     start = jg.Mesh.from_numpy(*(np.asarray(x) for x in gt.to_numpy()))
-    state = jg.init_optimizer_state(start, jax.random.key(0), albedo=(0.5, 0.5, 0.5), lighting=np.zeros((3, 3)))
-    state, rec = jg.optimize_block(state, cams, fit, n_steps=80, options=jg.OptimizeOptions(learning_rate=1e-3, adam_quantile=1.0,
+    state = jg.optim.init_optimizer_state(start, jax.random.key(0), albedo=(0.5, 0.5, 0.5), lighting=np.zeros((3, 3)))
+    state, rec = jg.optim.optimize_block(state, cams, fit, n_steps=80, options=jg.OptimizeOptions(learning_rate=1e-3, adam_quantile=1.0,
                                                                                                views_per_step=None))
     lt = np.asarray(state.appearance.lighting)
     assert lt.shape == (3, 3)

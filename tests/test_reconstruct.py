@@ -102,7 +102,7 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
 def test_visual_hull_of_torus_contains_it_and_keeps_the_hole(torus_scene):
     gt, cams, img = torus_scene
     hull = jg.visual_hull(img, cams, resolution=48)
-    assert jg.is_closed_manifold(hull) and jg.connected_components(hull)[0] == 1 and jg.genus(hull) == 1
+    assert jg.is_closed_manifold(hull) and jg.geometry.connected_components(hull)[0] == 1 and jg.genus(hull) == 1
     vol_hull, vol_gt = hull.to_trimesh().volume, gt.to_trimesh().volume
     assert vol_gt * 0.97 <= vol_hull <= vol_gt * 1.6, (vol_hull, vol_gt)  # a superset, up to the grid
     assert jg.metrics.volume_iou(hull, gt, n_samples=50_000) >= 0.6
@@ -227,7 +227,7 @@ def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
     size = 0.08
     out = drill_tunnels(sphere, 3, size)
     assert out is not None and jg.is_closed_manifold(out)
-    assert jg.genus(out) == 3 and jg.connected_components(out)[0] == 1
+    assert jg.genus(out) == 3 and jg.geometry.connected_components(out)[0] == 1
     vol = lambda m: trimesh.Trimesh(*m.to_numpy(), process=False).volume
     assert vol(out) == pytest.approx(vol(sphere), rel=0.01)  # three thin half-ring tunnels
     # every new surface point lies within the torus' reach (1.3 size) of the sphere
@@ -235,7 +235,7 @@ def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
     np.testing.assert_array_equal(sphere.to_numpy()[0], v)  # input untouched
     assert drill_tunnels(sphere, 1, 2.0) is None  # a ring larger than the object cannot make a handle
     crowded = drill_tunnels(jg.genus_primitive(0, n_faces=200), 50, 0.5)  # overlapping cuts are refused
-    assert crowded is None or (jg.genus(crowded) == 50 and jg.connected_components(crowded)[0] == 1)
+    assert crowded is None or (jg.genus(crowded) == 50 and jg.geometry.connected_components(crowded)[0] == 1)
 
 
 def test_same_key_same_result(torus_scene):

@@ -93,7 +93,7 @@ def test_genus_primitives_keep_topology(g):
         jg.RemeshOptions(adaptive=True, iterations=3),
     ):
         out, info = jg.remesh(mesh, options)
-        assert info.status == jg.RemeshStatus.OK, info.message
+        assert info.status == jg.geometry.RemeshStatus.OK, info.message
         assert info.chi_before == info.chi_after == 2 - 2 * g
         assert_same_topology(mesh, out)
         assert np.percentile(min_angles(*out.to_numpy()), 1) > 15.0  # coarse meshes of high genus
@@ -150,7 +150,7 @@ def test_shared_meshes_keep_topology(name, genus):
     mesh = jg.Mesh.from_numpy(np.asarray(tm.vertices, np.float32), np.asarray(tm.faces, np.int32))
     # Tiny meshes: validate() after every operation too.
     out, info = jg.remesh(mesh, jg.RemeshOptions(iterations=2, debug_validate=len(tm.faces) < 5000))
-    assert info.status == jg.RemeshStatus.OK, info.message
+    assert info.status == jg.geometry.RemeshStatus.OK, info.message
     assert jg.genus(out) == genus
     assert_same_topology(mesh, out)
 
@@ -205,7 +205,7 @@ def test_random_remeshes_of_noisy_meshes_keep_genus(g, seed, noise, scale, adapt
     v = v + noise * h * np.random.default_rng(seed).normal(size=v.shape)  # may fold and self-intersect
     opts = jg.RemeshOptions(target_edge_length=scale * h, adaptive=adaptive, iterations=iterations, smoothing_lambda=lam)
     out, info = jg.remesh((v, f), opts)
-    assert info.status == jg.RemeshStatus.OK, info.message
+    assert info.status == jg.geometry.RemeshStatus.OK, info.message
     assert_same_topology(jg.Mesh.from_numpy(v, f), out)
 
 
@@ -222,7 +222,7 @@ def test_a_coarse_boolean_with_thin_walls_keeps_its_shape():
                           jg.RemeshOptions(target_edge_length=0.03, adaptive=True, iterations=3))
     vv, ff = out.to_numpy()
     m = trimesh.Trimesh(vv, ff, process=False)
-    assert info.status == jg.RemeshStatus.OK and jg.genus(out) == genus
+    assert info.status == jg.geometry.RemeshStatus.OK and jg.genus(out) == genus
     assert abs(m.volume - ref.volume) < 0.01 * ref.volume, (m.volume, ref.volume)
     _, d, _ = trimesh.proximity.closest_point(m, ref.sample(5000, seed=0))
     assert d.max() < 0.1 and d.mean() < 0.005  # nothing of the plate is missing (corners are rounded)
@@ -259,7 +259,7 @@ def test_remesh_in_jit_inside_scan_keeps_genus():
         live = m.vertex_mask[:, None]
         centre = jnp.sum(jnp.where(live, m.vertices, 0), 0) / m.n_vertices
         m = jg.Mesh(jnp.where(live, m.vertices + 0.01 * (centre - m.vertices), 0), m.faces, m.n_vertices, m.n_faces)
-        m, state, info = jg.remesh_in_jit(m, opts, state)
+        m, state, info = jg.geometry.remesh_in_jit(m, opts, state)
         report = jg.mesh_report(m)
         return (m, state), (info.status, report.euler_characteristic, report.n_components, m.n_faces)
 
@@ -278,7 +278,7 @@ def test_ffi_and_numpy_paths_agree():
     mesh = jg.genus_primitive(1, n_faces=800).with_capacity(2000)
     opts = jg.RemeshOptions(iterations=3)
     a, ia = jg.remesh(mesh, opts)
-    b, _, ib = jax.jit(lambda m: jg.remesh_in_jit(m, opts))(mesh)
+    b, _, ib = jax.jit(lambda m: jg.geometry.remesh_in_jit(m, opts))(mesh)
     assert int(ib.status) == 0 and ia.status == 0
     # float32 vs float64 input: the same algorithm, so face counts agree closely.
     assert abs(int(ib.n_faces) - ia.n_faces) <= 0.05 * ia.n_faces
@@ -287,7 +287,7 @@ def test_ffi_and_numpy_paths_agree():
 
 def test_traced_target_edge_length():
     mesh = jg.genus_primitive(0, n_faces=500).with_capacity(4000)
-    run = jax.jit(lambda m, h: jg.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=h, iterations=3)))
+    run = jax.jit(lambda m, h: jg.geometry.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=h, iterations=3)))
     coarse, _, ic = run(mesh, jnp.float32(0.3))
     fine, _, i_f = run(mesh, jnp.float32(0.1))
     assert int(ic.status) == int(i_f.status) == 0
@@ -298,22 +298,22 @@ def test_traced_target_edge_length():
 
 def test_capacity_exceeded_still_gives_a_valid_mesh():
     mesh = jg.genus_primitive(2, n_faces=1000).with_capacity(1200)
-    out, _, info = jax.jit(lambda m: jg.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=0.01)))(mesh)
-    assert int(info.status) == jg.RemeshStatus.CAPACITY_EXCEEDED
+    out, _, info = jax.jit(lambda m: jg.geometry.remesh_in_jit(m, jg.RemeshOptions(target_edge_length=0.01)))(mesh)
+    assert int(info.status) == jg.geometry.RemeshStatus.CAPACITY_EXCEEDED
     assert int(info.faces_estimated) > 1200 and int(out.n_faces) <= 1200
     assert_same_topology(mesh, out)
 
 
 def test_invalid_input_returns_status_and_input():
     mesh = jg.genus_primitive(0, n_faces=300).with_capacity(400)
-    f = jax.jit(lambda m: jg.remesh_in_jit(m, jg.RemeshOptions()))
+    f = jax.jit(lambda m: jg.geometry.remesh_in_jit(m, jg.RemeshOptions()))
     bad_index = jg.Mesh(mesh.vertices, mesh.faces.at[3, 1].set(10_000), mesh.n_vertices, mesh.n_faces)
     nan_vertex = jg.Mesh(mesh.vertices.at[2, 0].set(jnp.nan), mesh.faces, mesh.n_vertices, mesh.n_faces)
     bad_count = jg.Mesh(mesh.vertices, mesh.faces, mesh.n_vertices, jnp.int32(10_000))
     open_mesh = jg.Mesh(mesh.vertices, mesh.faces.at[int(mesh.n_faces) - 1].set(0), mesh.n_vertices, mesh.n_faces - 1)
     for bad in (bad_index, nan_vertex, bad_count, open_mesh):
         out, _, info = f(bad)
-        assert int(info.status) == jg.RemeshStatus.INVALID_INPUT
+        assert int(info.status) == jg.geometry.RemeshStatus.INVALID_INPUT
         np.testing.assert_array_equal(np.asarray(out.faces), np.asarray(bad.faces))
     with pytest.raises(ValueError, match="INVALID_INPUT"):
         jg.remesh(open_mesh)
@@ -322,13 +322,13 @@ def test_invalid_input_returns_status_and_input():
 def test_vmap_and_grad():
     mesh = jg.genus_primitive(1, n_faces=400).with_capacity(800)
     batch = jax.tree.map(lambda x: jnp.stack([x, x]), mesh)
-    out, _, info = jax.vmap(lambda m: jg.remesh_in_jit(m, jg.RemeshOptions(iterations=1)))(batch)
+    out, _, info = jax.vmap(lambda m: jg.geometry.remesh_in_jit(m, jg.RemeshOptions(iterations=1)))(batch)
     assert np.all(np.asarray(info.status) == 0)
     np.testing.assert_array_equal(np.asarray(out.faces[0]), np.asarray(out.faces[1]))
 
     def loss(v):
         m = jg.Mesh(v, mesh.faces, mesh.n_vertices, mesh.n_faces)
-        r, _, _ = jg.remesh_in_jit(m, jg.RemeshOptions(iterations=1))
+        r, _, _ = jg.geometry.remesh_in_jit(m, jg.RemeshOptions(iterations=1))
         return jnp.sum(r.vertices**2) + jnp.sum(v**2)
 
     g = jax.grad(loss)(mesh.vertices)  # no error: the remesh is a constant w.r.t. v

@@ -59,7 +59,7 @@ def test_matches_dense_reference(channels, cull, sigma, gamma):
     c = sum(jg.rendering.CHANNEL_SIZES[x] for x in channels)
     w = _weights((2, 24, 24, c))
     kw = dict(channels=channels, sigma=sigma, gamma=gamma)
-    plan = jg.plan_render(mesh, cams, sigma=sigma, cull_backfaces=cull)
+    plan = jg.rendering.plan_render(mesh, cams, sigma=sigma, cull_backfaces=cull)
 
     def fast(v):
         return jg.render(_with_vertices(mesh, v), cams, cull_backfaces=cull, plan=plan, **kw)
@@ -80,7 +80,7 @@ def test_two_tier_plan_matches_dense_reference():
     """Faces larger than the small window go to the big tier and are rendered in full."""
     mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(1, radius=3.0, resolution=24)
-    plan = jg.RasterPlan(window=5, max_faces=80, big_window=24, max_big_faces=80)
+    plan = jg.rendering.RasterPlan(window=5, max_faces=80, big_window=24, max_big_faces=80)
     img, info = jg.render(mesh, cams, channels=ALL, sigma=0.5, plan=plan, return_info=True)
     assert int(info.n_overflow) == 0
     ref = dense_render(mesh, cams, channels=ALL, sigma=0.5, gamma=0.01)
@@ -105,7 +105,7 @@ def test_finite_differences_float64():
         assert mesh.vertices.dtype == jnp.float64
         cams = jg.look_at(np.array([[0.3, 0.2, 3.0], [2.5, 0.5, -1.0]]), resolution=12, fov_deg=45.0)
         w = jnp.asarray(np.random.default_rng(2).standard_normal((2, 12, 12, 6)))
-        plan = jg.plan_render(mesh, cams, sigma=4.0)
+        plan = jg.rendering.plan_render(mesh, cams, sigma=4.0)
 
         def loss(x):
             img = jg.render(_with_vertices(mesh, x.reshape(4, 3)), cams, channels=ALL, sigma=4.0, gamma=0.3,
@@ -264,7 +264,7 @@ def test_scaled_scene_is_scale_invariant(scale):
 def test_scaled_mesh_fixed_cameras_is_finite():
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
     mesh = icosphere(1, noise=0.1)
-    plan = jg.RasterPlan(window=16, max_faces=80)
+    plan = jg.rendering.RasterPlan(window=16, max_faces=80)
     for scale in (1e-3, 1e3):  # a dot, and cameras inside a huge sphere
         _finite(_with_vertices(mesh, mesh.vertices * scale), cams, plan=plan)
 
@@ -328,7 +328,7 @@ def test_silhouette_only_call_does_no_blend_work():
 def test_jit_scan_value_and_grad_with_camera_subsets():
     mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(6, radius=3.0, resolution=16)
-    plan = jg.plan_render(mesh, cams)
+    plan = jg.rendering.plan_render(mesh, cams)
     target = jg.render(_with_vertices(mesh, mesh.vertices * 0.9), cams, channels=("alpha", "normal"), plan=plan)
 
     def loss(v, idx):
@@ -351,7 +351,7 @@ def test_jit_scan_value_and_grad_with_camera_subsets():
 def test_vmap_over_meshes_and_cameras():
     mesh = icosphere(1, noise=0.1)
     cams = jg.sphere_cameras(2, radius=3.0, resolution=16)
-    plan = jg.plan_render(mesh, cams, face_margin=1.5)
+    plan = jg.rendering.plan_render(mesh, cams, face_margin=1.5)
     verts = jnp.stack([mesh.vertices, mesh.vertices * 0.8])
     batched = jax.jit(jax.vmap(lambda v: jg.render(_with_vertices(mesh, v), cams, plan=plan)))(verts)
     for i in range(2):
@@ -369,9 +369,9 @@ def test_overflow_is_counted():
     cams = jg.sphere_cameras(2, radius=3.0, resolution=32)
     _, info = jg.render(mesh, cams, return_info=True)  # plan chosen from the geometry
     assert int(info.n_overflow) == 0 and int(jnp.min(info.n_visible)) > 0
-    _, info = jg.render(mesh, cams, plan=jg.RasterPlan(window=4, max_faces=80), return_info=True)
+    _, info = jg.render(mesh, cams, plan=jg.rendering.RasterPlan(window=4, max_faces=80), return_info=True)
     assert int(jnp.sum(info.n_truncated)) > 0 and int(jnp.sum(info.n_dropped)) == 0
-    _, info = jg.render(mesh, cams, plan=jg.RasterPlan(window=32, max_faces=8), return_info=True)
+    _, info = jg.render(mesh, cams, plan=jg.rendering.RasterPlan(window=32, max_faces=8), return_info=True)
     np.testing.assert_array_equal(info.n_dropped, info.n_visible - 8)
     # inside jit without a plan: the generic plan still reports its coverage
     _, info = jax.jit(lambda m: jg.render(m, cams, return_info=True))(mesh)
@@ -410,10 +410,10 @@ def test_bad_types_raise():
 def test_face_and_vertex_normals_match_trimesh():
     s = trimesh.creation.icosphere(subdivisions=1)
     mesh = jg.Mesh.from_numpy(s.vertices, s.faces, capacity=128)
-    fn = np.asarray(jg.face_normals(mesh))
+    fn = np.asarray(jg.geometry.face_normals(mesh))
     np.testing.assert_allclose(fn[: len(s.faces)], s.face_normals, atol=1e-5)
     assert np.all(fn[len(s.faces):] == 0)
-    vn = np.asarray(jg.vertex_normals(mesh))
+    vn = np.asarray(jg.geometry.vertex_normals(mesh))
     tm = trimesh.Trimesh(s.vertices, s.faces, process=False)
     w = tm.area_faces[:, None] * tm.face_normals
     acc = np.zeros_like(s.vertices)
@@ -424,5 +424,5 @@ def test_face_and_vertex_normals_match_trimesh():
     assert np.all(vn[len(s.vertices):] == 0)
     # a zero-area face has a zero normal and a finite gradient
     deg = jg.Mesh.from_numpy(np.zeros((3, 3)), np.array([[0, 1, 2]]))
-    g = jax.grad(lambda v: jnp.sum(jg.face_normals(_with_vertices(deg, v))))(deg.vertices)
+    g = jax.grad(lambda v: jnp.sum(jg.geometry.face_normals(_with_vertices(deg, v))))(deg.vertices)
     assert bool(jnp.all(jnp.isfinite(g)))

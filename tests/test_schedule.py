@@ -14,7 +14,7 @@ from jaxgenus.pipeline import _schedule, _verdict
 
 def _row(c, pixels, steps, a, b, faces=1000, compile_s=0.0, remesh=1.0):
     opt = steps * (a + b * pixels)
-    return jg.CycleRecord(cycle=c, faces=faces, vertices=faces // 2 + 2, chi=2, loss=0.0, truncated_faces=0,
+    return jg.pipeline.CycleRecord(cycle=c, faces=faces, vertices=faces // 2 + 2, chi=2, loss=0.0, truncated_faces=0,
                           compilations=1, seconds=opt + compile_s + remesh, elapsed=0.0, remesh_status="OK",
                           remesh_seconds=remesh, optimizer_seconds=opt)
 
@@ -74,7 +74,7 @@ def test_verdict_chunks_share_one_program(monkeypatch):
     photos = np.asarray(raycast_lambert(cams, torus_trimesh(1.0, 0.35, 48, 24), light_direction=(0.4, 0.8, 0.45),
                                         ambient=0.25, albedo=cell_albedo(0.1)), np.float32)
     table = view_neighbours(cams)
-    lighting, _ = jg.directional_lighting((0.4, 0.8, 0.45), 0.25)
+    lighting, _ = jg.rendering.directional_lighting((0.4, 0.8, 0.45), 0.25)
     albedo = np.full((mesh.vertex_capacity, 3), 0.5, np.float32)
 
     def scores():

@@ -28,12 +28,12 @@ def scene():
         photos = np.asarray(raycast_lambert(cams, tm, light_direction=LIGHT, ambient=AMBIENT, albedo=albedo), np.float32)
         photos[..., :3] *= photos[..., 3:4]  # premultiplied, as the pipeline fits them
         out[name] = jnp.asarray(photos)
-    lighting, _ = jg.directional_lighting(LIGHT, AMBIENT, model="directional")
+    lighting, _ = jg.rendering.directional_lighting(LIGHT, AMBIENT, model="directional")
     return cams, out, jnp.asarray(lighting, jnp.float32)
 
 
 def _cost(mesh, cams, photos, lighting, shading="smooth"):
-    e = jnp.maximum(jg.irradiance(jg.vertex_normals(mesh) if shading == "smooth" else jg.face_normals(mesh), lighting), 0)
+    e = jnp.maximum(jg.rendering.irradiance(jg.geometry.vertex_normals(mesh) if shading == "smooth" else jg.geometry.face_normals(mesh), lighting), 0)
     kw = {"vertex_colors": e} if shading == "smooth" else {"face_colors": e}
     img = jg.render(mesh, cams, channels=("alpha", "color"), **kw)
     return shading_ratio_cost(img[..., 0], img[..., 1:4], photos)
@@ -107,13 +107,13 @@ def test_the_objective_counts_pairs_near_albedo_edges_only(scene):
     mesh = torus(1.0, 0.33, 64, 32)
     albedo = jnp.full((mesh.vertex_capacity, 3), 0.5, jnp.float32)
     w = jg.LossWeights(shading_ratio=1.0, photo=0.0, alpha=0.0, inversion=0.0, albedo_smoothness=0.0)
-    terms = {name: jg.objective(mesh, cams, photos[name], mesh.vertices, weights=w, appearance=(albedo, lighting))[1]
+    terms = {name: jg.optim.objective(mesh, cams, photos[name], mesh.vertices, weights=w, appearance=(albedo, lighting))[1]
              for name in ("cells", "constant")}
     # a constant albedo marks few pixels (inner contours, where the torus hides itself)
     assert float(terms["constant"]["shading_ratio"]) < 0.1 * float(terms["cells"]["shading_ratio"]), terms
     near = jg.optim.albedo_edges(photos["cells"], band=jg.optim.RATIO_BAND)
     full, n_all = _cost(mesh, cams, photos["cells"], lighting)
-    e = jnp.maximum(jg.irradiance(jg.vertex_normals(mesh), lighting), 0)
+    e = jnp.maximum(jg.rendering.irradiance(jg.geometry.vertex_normals(mesh), lighting), 0)
     img = jg.render(mesh, cams, channels=("alpha", "color"), vertex_colors=e)
     part, n_near = shading_ratio_cost(img[..., 0], img[..., 1:4], photos["cells"], where=near)
     assert float(terms["cells"]["shading_ratio"]) == pytest.approx(float(part), rel=1e-5)

@@ -69,11 +69,13 @@ def test_bad_inputs_are_named():
         jg.ReconstructOptions(subdivide=1)
 
 
-def test_reconstruct_returns_the_subdivided_fit():
+def test_reconstruct_returns_the_subdivided_fit_only_where_it_is_coarser_than_the_images():
     gt = jg.builtin_scene("torus")
     cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=48)
     img = jg.render_targets(gt, cams)
-    opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=20, initial_faces=600, refits=0)
+    # one cycle: the result has the start's edges, 4 px (coarser than the images: subdivided)
+    opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=20, initial_faces=600, refits=0,
+                                           initial_edge_length=4.0, final_edge_length=4.0)
     lines = []
     on = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(1), log=lines.append)
     off = jg.reconstruct(img, cams, 1, options=opts.updated(subdivide=False), key=jax.random.key(1))
@@ -81,4 +83,10 @@ def test_reconstruct_returns_the_subdivided_fit():
     vo, _ = off.mesh.to_numpy()
     np.testing.assert_allclose(on.mesh.to_numpy()[0][: len(vo)], vo, rtol=1e-6, atol=1e-6)
     assert any(line.startswith("subdivided:") for line in lines)
+    # edges of 1.5 px: as fine as the images resolve, the result is the fit (a 48-px torus in 4k faces, not 16k)
+    lines = []
+    fine = jg.reconstruct(img, cams, 1, options=opts.updated(initial_edge_length=1.5, final_edge_length=1.5), key=jax.random.key(1),
+                          log=lines.append)
+    assert any(line.startswith("not subdivided: the median edge is") for line in lines), lines
+    assert int(fine.mesh.n_faces) == int(fine.history["cycles"][-1]["faces"])
     assert jg.ReconstructOptions.nicolet().subdivide is False

@@ -30,7 +30,7 @@ def test_components_and_per_component_genus():
     v = np.concatenate([t.vertices, s.vertices + 5.0])
     f = np.concatenate([t.faces, s.faces + len(t.vertices)])
     mesh = jg.Mesh.from_numpy(v, f, capacity=2048)
-    n, labels = jg.connected_components(mesh)
+    n, labels = jg.geometry.connected_components(mesh)
     assert n == 2
     assert np.all(labels[: len(t.faces)] == labels[0]) and np.all(labels[len(t.faces) :] != labels[0])
     assert sorted(jg.component_genera(mesh)) == [0, 1]

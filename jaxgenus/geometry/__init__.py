@@ -33,7 +33,7 @@ from jaxgenus.geometry._photo_depth import PhotoDepthFit, fit_photo_depth
 from jaxgenus.geometry._reprojection import (OutlineFit, Reprojection, UnseenFill, fill_unseen, fit_outline,
                                              reprojection_psnr, seen_counts)
 from jaxgenus.geometry._subdivision import Subdivision, phong_subdivision
-from jaxgenus.geometry._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit
+from jaxgenus.geometry._remesh import RemeshInfo, RemeshOptions, RemeshStatus, remesh, remesh_in_jit, settings_repr
 from jaxgenus.geometry._topology import (
     MeshReport,
     component_genera,
@@ -96,6 +96,7 @@ __all__ = [
     "project",
     "remesh",
     "remesh_in_jit",
+    "settings_repr",
     "save_mesh",
     "sphere_cameras",
     "uniform_laplacian",

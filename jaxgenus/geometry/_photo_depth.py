@@ -8,7 +8,7 @@ vertex's projection is cast onto planes through the vertex, tangent to the surfa
 normal in steps of a fraction of a reference pixel; each plane sends the square into the neighbours,
 and the zero-mean normalized cross-correlation (NCC) of the colours there (each channel zero-mean over
 the square, one norm over the three) against the reference square scores it (an exposure offset per
-channel and a gain common to the channels do not count; grey NCC held DTU scan24 0.09 dB lower). The
+channel and a gain common to the channels do not count). The
 best offset per vertex (a parabola through the best three) becomes a target, weighed by how far the
 best score stands above the mean one; vertices with too little texture (colour deviation under
 `min_contrast`), no neighbour, a best score under `min_ncc` or a best offset at the end of the range

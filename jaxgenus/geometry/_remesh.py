@@ -43,7 +43,26 @@ from jaxtyping import Array, Float, Int
 from jaxgenus._ffi import host_ffi_call, native
 from jaxgenus.geometry._mesh import Mesh, capacity_bucket
 
-__all__ = ["RemeshOptions", "RemeshInfo", "RemeshStatus", "remesh", "remesh_in_jit"]
+__all__ = ["RemeshOptions", "RemeshInfo", "RemeshStatus", "remesh", "remesh_in_jit", "settings_repr"]
+
+
+def settings_repr(settings, default=None) -> str:
+    """`Name(field=value, ...)` of a frozen settings dataclass whose fields all have defaults,
+    naming only the fields that differ from `default` (the class's defaults): `RemeshOptions()`
+    reads `RemeshOptions()`, and nested settings name only what differs from the default's own."""
+    default = type(settings)() if default is None else default
+    changed = []
+    for f in dataclasses.fields(settings):
+        value, base = getattr(settings, f.name), getattr(default, f.name)
+        try:
+            same = bool(value == base)
+        except (TypeError, ValueError):  # arrays compare element-wise
+            same = False
+        if same:
+            continue
+        nested = dataclasses.is_dataclass(value) and type(value) is type(base)
+        changed.append(f"{f.name}={settings_repr(value, base) if nested else repr(value)}")
+    return f"{type(settings).__name__}({', '.join(changed)})"
 
 
 class RemeshStatus(enum.IntEnum):
@@ -55,7 +74,7 @@ class RemeshStatus(enum.IntEnum):
     TOPOLOGY_CHANGED = 3
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, repr=False)
 class RemeshOptions:
     """Remeshing parameters (immutable and hashable, so usable as a static `jit` argument).
 
@@ -84,6 +103,10 @@ class RemeshOptions:
             unlimited in `remesh`). The sizing field is scaled up to fit it and the
             status is then CAPACITY_EXCEEDED (the result is still a valid mesh).
     """
+
+    def __repr__(self) -> str:
+        return settings_repr(self)
+
 
     target_edge_length: float | None = None
     adaptive: bool = False

@@ -48,8 +48,8 @@ _OCCLUSION = 0.015  # relative depth tolerance of the visibility test
 _COVER = 0.99  # pixels whose rendered coverage is below this sit on a contour: their depth is blended
 # Inside the silhouette, an occluding contour blends the depths of the near and the far surface: moving
 # it sideways changes the blended depth, so NCC there would push limbs sideways, where no silhouette
-# holds them (mother_child: a leg pushed out, CD 0.0263). Pixels next to a depth step this large
-# (relative) are left out (docs/photometric.md, "Occluding contours").
+# holds them. Pixels next to a depth step this large
+# (relative) are left out (docs/results.md, "Occluding contours").
 _DEPTH_STEP = 0.02
 #: The scale of `robust_cost`: this many times the median window residual.
 ROBUST_SPREAD = 2.0
@@ -175,7 +175,7 @@ def _blurred(img):
     edges clamped): sampled texture is band-limited before it is compared and interpolated. Each image
     is blurred in its own pixels, so where two views foreshorten the surface differently they see
     different blurs of its texture, and NCC then prefers a surface that evens them out over the true
-    one: a fine texture is compared unblurred (docs/photometric.md, "No blur for a fine texture")."""
+    one: a fine texture is compared unblurred (docs/results.md, "No blur for a fine texture")."""
     k = (1.0 / 16, 4.0 / 16, 6.0 / 16, 4.0 / 16, 1.0 / 16)
     for axis in (1, 2):
         n = img.shape[axis]

@@ -12,7 +12,7 @@ beyond `EDGE_LOG_RATIO` (a jump that a smooth surface's shading does not make fr
 pixel to the next: a normal turning by 5 degrees per pixel changes a lamp's light by
 about 10 %). Cast shadows and the borders of highlights are left out with them, which
 the model lacks anyway. Inside the albedo's patches the term works as before, and the
-silhouette and photo-consistency terms are not touched (docs/photometric.md, "Albedo
+silhouette and photo-consistency terms are not touched (docs/results.md, "Albedo
 edges").
 
 **Shading ratios** (`shading_ratio_cost`). A matte photo is `albedo * E(n)`. Within a
@@ -27,7 +27,7 @@ ramps, and the term then fits the steps). The cost of a residual `r` is the boun
 Geman-McClure `c r^2 / (r^2 + c^2)` with `c = scale`: pairs inside one albedo patch pull
 the normals as shading does; pairs across an albedo edge, whose residual is large, pull
 almost nothing. A texture finer than the mesh, which the per-vertex albedo cannot hold,
-then no longer hides the shading (docs/photometric.md, "Shading ratios"). It is the
+then no longer hides the shading (docs/results.md, "Shading ratios"). It is the
 Retinex idea of intrinsic images (Land and McCann 1971), used as a loss on the normals.
 
 Pairs count where both pixels are at least 2 px inside the rendered coverage and inside

@@ -35,7 +35,7 @@ from jaxgenus.optim._intrinsic import RATIO_BAND, albedo_edges, shading_ratio_co
 from jaxgenus.optim._carving import carving_term
 from jaxgenus.optim._consistency import photo_consistency, stereo_depth_cost
 from jaxgenus.optim._containment import containment_penalty
-from jaxgenus.geometry import bilaplacian_energy, inversion_penalty, vertex_normals
+from jaxgenus.geometry import settings_repr, bilaplacian_energy, inversion_penalty, vertex_normals
 from jaxgenus.rendering import RenderSettings, irradiance, render, shading_colors
 
 __all__ = ["CLIP_LOW", "CLIP_HIGH", "LossWeights", "albedo_smoothness", "image_loss", "image_terms", "objective",
@@ -46,7 +46,7 @@ CLIP_LOW, CLIP_HIGH = 0.5 / 255.0, 254.5 / 255.0
 _CHARBONNIER = 1e-3
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, repr=False)
 class LossWeights:
     """Static weights of the objective's terms (0 skips a term entirely).
 
@@ -72,35 +72,35 @@ class LossWeights:
         consistency: multi-view photo-consistency of photo targets (`photo_consistency`: the
             mean robust cost of `1 - NCC` over textured windows, each view against a neighbour
             through the rendered depth); used when `objective` is given `neighbours`
-            (`reconstruct` gives them to photo targets on one device). Weight 1: on a real
-            capture it raised held-out PSNR by 0.6-1 dB over photos alone, and on ray-cast photos of
-            two genus-2 shapes it beat photos alone on both (docs/photometric.md, "Photo-consistency").
+            (`reconstruct` gives them to photo targets on one device). Weight 1
+            (docs/results.md, "Photo-consistency").
         albedo_edges: a factor on the photometric term at the pixels next to an albedo edge
             (`albedo_edges`: a jump in colour that shading does not make), where a face's blended
             albedo cannot follow the photo. 1 (default) keeps them as they are; 0 leaves them out,
-            which suits a texture finer than the mesh holds (on ray-cast photos of 10 px colour cells,
-            CD 0.00300 -> 0.00214) but not a real capture whose albedo the mesh follows (DTU scan65
-            at 1/4 size 23.51 -> 23.06 dB held-out PSNR; docs/photometric.md, "Albedo edges").
+            which suits a texture finer than the mesh holds but not a real capture whose albedo the
+            mesh follows (docs/results.md, "Albedo edges").
         stereo: photo targets with stereo depths (`objective(..., neighbours=(.., .., depths))`;
             `reconstruct` finds them by plane sweep, `jaxgenus.capture.stereo_depths`):
             `stereo_depth_cost`, the rendered depth against them, a basin as wide as the sweep.
         shading_ratio: photo targets: `shading_ratio_cost`, the log ratios of nearby pixels of the
             photo against those of the smoothly shaded irradiance at the mesh's normals (albedo-free;
             one more render a step), over the pairs near an albedo edge (`RATIO_BAND`). 0 here;
-            `reconstruct` sets 6 for photos of a fine texture (`ReconstructOptions.texture_ratio`),
-            where it took ray-cast 10-px colour cells from 1.33x to about 1x the silhouette-only CD;
-            on smooth albedos it costs (docs/photometric.md, "Shading ratios").
+            `reconstruct` sets 6 for photos of a fine texture (`ReconstructOptions.texture_ratio`);
+            on smooth albedos it costs (docs/results.md, "Shading ratios").
         consistency_blur: not a weight of a term: how much of a binomial blur (sigma 1 px, each
             photo in its own pixels) the `consistency` term compares, 1 all, 0 none. The blur
             smooths the term on smooth shading, but it biases NCC off the true surface where a
             fine texture is foreshortened differently in two views; `reconstruct` sets 0 for
-            photos of a fine texture (`ReconstructOptions.texture_blur`; ray-cast 10-px colour
-            cells on two genus-2 shapes: CD 0.00204 -> 0.00188, 0.00161 -> 0.00149;
-            docs/photometric.md, "No blur for a fine texture").
+            photos of a fine texture (`ReconstructOptions.texture_blur`; docs/results.md, "No blur
+            for a fine texture").
         consistency_colour: not a weight of a term: 1 compares R, G and B in the `consistency` term
             (one NCC per window from the three channels' covariances and variances), 0 (default) the
             grey level. `reconstruct`'s closing polish uses 1 (`ReconstructOptions.polish_steps`).
     """
+
+    def __repr__(self) -> str:
+        return settings_repr(self)
+
 
     alpha: float = 1.0
     normal: float = 1.0

@@ -33,7 +33,7 @@ from jaxgenus.optim._adam import UniformAdamState, adam as plain_adam, uniform_a
 from jaxgenus.geometry import inverted_face_count
 from jaxgenus.optim._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
 from jaxgenus.optim._loss import LossWeights, objective, render_channels
-from jaxgenus.geometry import Mesh
+from jaxgenus.geometry import Mesh, settings_repr
 from jaxgenus.geometry import uniform_laplacian
 from jaxgenus.optim._devices import AXIS, views_gradient
 from jaxgenus.optim._pyramid import crop_views, step_views, target_boxes
@@ -50,7 +50,7 @@ __all__ = [
 ]
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, repr=False)
 class OptimizeOptions:
     """Static settings of `optimize_block` (hashable; changing one recompiles).
 
@@ -91,6 +91,10 @@ class OptimizeOptions:
         render: `RenderSettings` passed to the renderer (`None`: none are passed,
             the renderer's own defaults).
     """
+
+    def __repr__(self) -> str:
+        return settings_repr(self)
+
 
     learning_rate: float = 8e-2
     lambda_: float = DEFAULT_LAMBDA

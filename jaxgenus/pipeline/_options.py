@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
-from jaxgenus.geometry import RemeshOptions
+from jaxgenus.geometry import settings_repr, RemeshOptions
 from jaxgenus.optim import LossWeights, OptimizeOptions, resolution_factors
 from jaxgenus.rendering import RenderSettings
 
@@ -35,7 +35,7 @@ def _choice(name, v, allowed):
         raise ValueError(f"options.{name} must be one of {', '.join(map(repr, allowed))}, got {v!r}")
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, repr=False)
 class ReconstructOptions:
     """Settings of `reconstruct` (immutable). Edge lengths are in pixels (see below).
 
@@ -117,113 +117,67 @@ class ReconstructOptions:
             dropped and the next refit runs without carving. 0 turns it off.
         detail_faces: photo targets fitted with photo-consistency: when the photos resolve 4 x
             `max_faces` or more (faces with edges of 4 px on the visual hull), the face budget
-            rises towards that, to at most this many (docs/photometric.md, "Face budget"; time and memory grow with it:
-            DTU scan65 at 1600x1200 on 2 CPU cores, 12k faces: 196 s, 6.9 GB, 40k: 431 s,
-            8.7 GB). 0, or any value not above `max_faces`, holds the budget at `max_faces`.
-        texture_ratio: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`, the jumps
-            themselves) cover `FINE_TEXTURE` (30 %) of the masks or more in the finest images a fit
-            sees, a texture finer than the mesh's albedo holds, are fitted with
-            `LossWeights.shading_ratio` at this weight when it is 0 (ray-cast 10-px colour cells: 41-45 %
-            of the pixels, CD 0.00300 -> 0.00228 on a genus-2 shape; DTU scan24 35 % at 400x300;
-            smooth albedos 8-18 %, DTU scan65 3-11 %, where the term costs or does nothing). 0: never
-            (docs/photometric.md, "Shading ratios").
+            rises towards that, to at most this many (time and memory grow with it). 0, or any
+            value not above `max_faces`, holds the budget at `max_faces`.
+        texture_ratio: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`) cover
+            `FINE_TEXTURE` (30 %) of the masks or more in the finest images a fit sees (a texture
+            finer than the mesh's albedo holds) are fitted with `LossWeights.shading_ratio` at this
+            weight when it is 0. 0: never.
         texture_alpha: the silhouette weight (`LossWeights.alpha`) for photos of such a fine texture,
             when it is at its default (1): where shading cannot explain the photos, the outline the
-            masks give weighs more (DTU scan24 at 1600x1200: 20.97 -> 21.32 dB held-out; ray-cast
-            10-px cells on two genus-2 shapes: CD 0.00228 -> 0.00204, 0.00194 -> 0.00161; on smooth
-            albedos it costs, and they stay under the share). 0: never (docs/photometric.md, "Shading ratios").
+            masks give weighs more. 0: never.
         texture_blur: `LossWeights.consistency_blur` for photos of such a fine texture, when it is at
-            its default (1): photo-consistency compares them unblurred (0), as each photo blurred in
-            its own pixels biases NCC off the true surface where two views foreshorten the texture
-            differently (ray-cast 10-px cells on two genus-2 shapes: CD 0.00204 -> 0.00188,
-            0.00161 -> 0.00149; DTU scan24 at 1600x1200: 21.32 -> 21.45 dB held-out; on smooth
-            shading the blur steadies the term). 1: blurred as other photos (docs/photometric.md,
-            "No blur for a fine texture").
+            its default (1): compared unblurred (0), as a blur in each photo's own pixels biases NCC
+            where two views foreshorten the texture differently. 1: blurred as other photos.
         texture_photo: the photometric weight (`LossWeights.photo`) for photos of such a fine texture,
-            when it is at its default (6): a per-vertex albedo cannot hold the texture, so the
-            shading term pulls the surface with the texture it cannot fit and photo-consistency does
-            better with less of it (ray-cast 10-px cells on two genus-2 shapes: CD 0.00188 -> 0.00171,
-            0.00149 -> 0.00146; DTU scan24 at 1600x1200: 21.45 -> 21.70 dB held-out). The albedo is
-            still fitted (its Adam step does not scale with the weight). 0: never (docs/photometric.md,
-            "Less shading for a fine texture").
+            when it is at its default (6): a per-vertex albedo cannot hold the texture, and
+            photo-consistency does better with less shading. 0: never.
         stereo_carve: photo targets on one device: the visual hull loses the space that plane-sweep
-            stereo of the photos shows to be empty (`jaxgenus.capture.stereo_depths`), in front of
-            depths two views agree on, by `stereo_carve` grid cells or more, in two views; so the
-            start has the concavities no silhouette shows (a courtyard). Only for photos of a fine
-            texture at the stereo size (`FINE_TEXTURE`): smooth shading gives wrong depths two views
-            agree on. 0: off (docs/photometric.md, "Stereo: the start and a depth term").
+            stereo (`jaxgenus.capture.stereo_depths`) shows to be empty, in front of depths two views
+            agree on, by `stereo_carve` grid cells or more, so the start has the concavities no
+            silhouette shows. Only for photos of a fine texture at the stereo size. 0: off.
         polish_cycles: photo targets fitted with photo-consistency (one device): after the cycles,
-            this many more cycles of `steps_per_cycle` steps at the finest level, without remeshing,
-            on the silhouettes (at the cycles' weight, `polish_alpha`) and photo-consistency of
-            R, G and B unblurred only, at the last cycle's step size with fresh moments and iterate
-            averaging (`polish_average`; docs/photometric.md, "The closing polish"). 0 (default): none, but see
-            `texture_polish`.
-        texture_polish: `polish_cycles` for photos of such a fine texture, when it is 0: the shading,
-            albedo, ratio and stereo terms that steer the cycles hold the surface off where
-            photo-consistency alone puts it (ray-cast 10-px colour cells on two genus-2 shapes: CD
-            0.00171 -> 0.00149 and 0.00146 -> 0.00126; DTU scan24 at 1600x1200: 21.70 -> 22.09 dB
-            held-out). Where the texture is smooth it costs: with few textured windows the silhouettes
-            take over (kitten, constant albedo: 0.00263 -> 0.00322). 0: never.
-        texture_adaptive: photos of such a fine texture are remeshed between cycles with the
-            curvature-adaptive sizing (`RemeshOptions.adaptive`) when it is off: the budget's faces go
-            to the creases and small parts that photo-consistency can then sharpen, fewer to flat
-            walls (ray-cast 10-px cells on two genus-2 shapes: CD 0.00132 -> 0.00116 and 0.00120 ->
-            0.00111; docs/photometric.md, "Adaptive remeshing for a fine texture"). False: as set.
+            this many more cycles at the finest level, without remeshing, on the silhouettes
+            (`polish_alpha`) and colour photo-consistency only, with fresh moments and iterate
+            averaging (`polish_average`). 0 (default): none, but see `texture_polish`.
+        texture_polish: `polish_cycles` for photos of such a fine texture, when it is 0. 0: never.
+        texture_adaptive: photos of such a fine texture are remeshed curvature-adaptively
+            (`RemeshOptions.adaptive`) when it is off. False: as set.
         texture_faces: photos of such a fine texture (at full size) that resolve fewer faces than
-            `max_faces` (`detail_faces`' count: edges of 4 px on the visual hull) get a face budget
-            lowered to that count, to no less than this share of `max_faces`: finer edges than the
-            photos resolve let the texture move the surface (ray-cast 10-px cells at 256^2, 12k
-            faces -> 8k: eight CD 0.00116 -> 0.00109, mother_child 0.00110 -> 0.00105; 6k: 0.00111;
-            docs/photometric.md, "The face budget of a fine texture"). 1: `max_faces` as set.
-        texture_cycles: `n_cycles` for photos of such a fine texture, when it is at its default (4): one
-            more optimize/remesh cycle on the same schedule, the remesh edge lengths spaced over one
-            more step (ray-cast 10-px cells at 256^2, seeds 0 / 1: eight CD 0.00106 / 0.00106 ->
-            0.00103 / 0.00102, mother_child 0.00079 -> 0.00078; DTU scan24 at 1600x1200 24.44 ->
-            24.35 dB held-out, ~15 % more time; docs/photometric.md, "Five cycles for a fine
-            texture"). Only where the photos resolve fewer than 4 x the faces of the budget
-            (`detail_budget`'s count): DTU scan24 at 1600x1200 resolves 1.1M faces against 40k, and
-            there the fifth cycle cost 0.12 / 0.12 / 0.51 dB (seeds 0 / 1 / 2: 24.57 / 24.70 / 24.48
-            dB held-out with four). 0, or any value not above `n_cycles`: as set.
-        polish_lambda: the large-steps `lambda_` of the polish cycles (the cycles keep
-            `optimize.lambda_`): less smoothing lets photo-consistency sharpen the creases the
-            cycles rounded (5 against 19: eight 0.00149 -> 0.00141, mother_child 0.00126 ->
-            0.00123, DTU scan24 at 1/4 21.54 -> 21.98 dB held-out; docs/photometric.md, "The
-            closing polish").
-        polish_alpha: the polish's silhouette weight; None: the cycles' (`texture_alpha` for a
-            fine texture; 4 against 1: eight 0.00141 -> 0.00132, mother_child 0.00123 -> 0.00120,
-            DTU scan24 at 1/4 21.98 -> 22.18 dB held-out).
+            `max_faces` get a budget lowered to that count, to no less than this share of
+            `max_faces`. 1: `max_faces` as set.
+        texture_cycles: `n_cycles` for photos of such a fine texture, when it is at its default (4),
+            where the photos resolve fewer than 4 x the faces of the budget. 0, or any value not above
+            `n_cycles`: as set.
+        polish_lambda: the large-steps `lambda_` of the polish cycles (less smoothing than the
+            cycles' `optimize.lambda_`, so photo-consistency can sharpen creases).
+        polish_alpha: the polish's silhouette weight; None: the cycles'.
         polish_average: the polish's iterate averaging (`OptimizeOptions.average`: about the last
-            `1 / (1 - polish_average)` steps of each polish cycle are averaged; 0.99 against 0.95:
-            ray-cast 10-px cells, seeds 0 / 1, eight 0.00108 / 0.00112 -> 0.00106 / 0.00108,
-            mother_child 0.00105 / 0.00105 -> 0.00103 / 0.00103; DTU scan24 at 1600x1200, seeds 0 / 1 / 2,
-            24.45 / 25.08 / 24.86 -> 24.48 / 25.07 / 24.97 dB held-out).
-        subdivide: the result goes through one `phong_subdivision` (4x the faces; the albedo
-            carried to the new vertices): a fitted mesh's flat faces are chords that cut under
-            its curved parts by about k h^2 / 8, and the new vertices sit on the smooth surface
-            through the fitted ones. The verdict judged the fitted mesh; refits start from it.
-            False: the mesh as fitted (`nicolet()` sets it).
+            `1 / (1 - polish_average)` steps of each polish cycle).
+        subdivide: a result whose median edge is longer than `SUBDIVIDE_EDGE_PX` (2) pixels at the
+            images' own size goes through one `phong_subdivision` (4x the faces, the albedo carried):
+            flat faces are chords that cut under curved parts by about k h^2 / 8, and the new
+            vertices sit on the smooth surface through the fitted ones. A finer result is kept as
+            fitted (the images hold no finer detail). The verdict judged the fitted mesh. False:
+            never (`nicolet()` sets it).
         fill_unseen: photo targets: before the subdivision, the vertices no camera sees (though
-            some holds them in frame: a slot behind a gable, the underside, a bulge behind a wall)
-            move onto the membrane the seen surface spans around them (`jaxgenus.geometry.fill_unseen`;
-            docs/photometric.md, "The surface no camera sees"). The photos never checked that
-            surface; as fitted it shows held-out views cracks and hides from them what the
-            cameras saw (DTU scan24 at 1600x1200, seed 0: 24.35 -> 24.45 dB held-out). False: off.
+            some holds them in frame) move onto the membrane the seen surface spans around them
+            (`jaxgenus.geometry.fill_unseen`). False: off.
         fit_outline: when the finest level fitted is coarser than the images, the result's outline
-            moves onto the masks at their own size after the subdivision
-            (`jaxgenus.geometry.fit_outline`; docs/photometric.md, "The outline at the masks' own
-            size"): a fit at 1/4 leaves it about a pixel off at full size. False: off.
+            moves onto the masks at their own size (`jaxgenus.geometry.fit_outline`). False: off.
         fit_photo_depth: photo targets, when the finest level fitted is coarser than the images:
             after the outline, the surface moves along its normals to where the photos at their
-            own size agree (a plane sweep of patch NCC against neighbouring views,
-            `jaxgenus.geometry.fit_photo_depth`; docs/photometric.md, "The surface at the photos'
-            own size"); the outline stays. False: off.
-        depth_edge_px: before the outline and the sweep, the mesh goes through one more Phong
-            subdivision while its median edge, seen from the nearest camera at the images' own size,
-            is longer than this many pixels (at most 2^20 faces): the sweep measures a vertex's
-            depth from a 13-pixel square, and relief between vertices further apart than that is
-            not measured (DTU scan24: 11 px edges -> 5.5 px, 152k -> 608k faces, seed 0 24.87 ->
-            24.94 dB held-out). 0: no more subdivision.
+            own size agree (`jaxgenus.geometry.fit_photo_depth`); the outline stays. False: off.
+        depth_edge_px: before the outline and the sweep, more Phong subdivisions while the median
+            edge at the images' own size is longer than this many pixels (at most 2^20 faces): the
+            sweep measures a vertex's depth from a 13-pixel square. 0: no more subdivision.
+
+    What each default bought is in docs/results.md.
     """
+
+    def __repr__(self) -> str:
+        return settings_repr(self)
+
 
     n_cycles: int = 4
     steps_per_cycle: int = 150

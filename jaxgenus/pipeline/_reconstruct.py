@@ -37,11 +37,14 @@ from jaxgenus.pipeline._start_stage import (CHECK_TRIES, estimate_line, evidence
                                              holes_not_had, image_handle_records, images_estimate, refit_start)
 
 _DEPTH_MAX_FACES = 1 << 20
+#: The result is subdivided only where its median edge is longer than this many pixels at the images'
+#: own size: a finer mesh holds no detail the images show (a 64-px torus stays at the faces it was fitted with).
+SUBDIVIDE_EDGE_PX = 2.0
 
 __all__ = ["genus_estimate", "reconstruct"]
 
 # A refit that lowers the mean normal error by less than this share of it predicts a next
-# one that gains nothing (docs/reconstruction.md, "Default refits"). Default refits only.
+# one that gains nothing (docs/results.md, "Default refits"). Default refits only.
 _MIN_REFIT_GAIN = 0.03
 
 
@@ -145,6 +148,15 @@ def reconstruct(
 ) -> Reconstruction:
     """Reconstruct a watertight mesh of genus `genus` from multi-view images.
 
+    Example:
+        >>> import jaxgenus as jg
+        >>> gt = jg.builtin_scene("torus")
+        >>> cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
+        >>> rec = jg.reconstruct(jg.render_targets(gt, cams), cams, genus=1)
+        >>> rec.genus, rec.history["ok"], jg.metrics.volume_iou(rec.mesh, gt) > 0.9
+        (1, True, True)
+        >>> jg.save_mesh(rec.mesh, "torus.obj")
+
     Args:
         images: `(N, H, W)` / `(N, H, W, 1)` silhouettes, or `(N, H, W, 4)` RGBA in
             [0, 1] whose A is the silhouette and whose RGB is either world normals
@@ -178,9 +190,19 @@ def reconstruct(
             must meet the sphere (else `ValueError`). None: no bound.
 
     Returns:
-        A `Reconstruction` (mesh in the user's frame and units). `history["ok"]` is
-        False, with reasons in `history["warnings"]`, when the result does not match
-        its images. Inputs are not modified.
+        A `Reconstruction`, in the user's frame and units:
+
+        * `mesh`: the watertight `Mesh` written by the CLI (`mesh.to_numpy()`: vertices, faces);
+        * `genus`: its genus (-1 when not a closed manifold); `genus_ok`: it is the genus asked for;
+        * `history`: the run record: `history["ok"]` is False, with reasons in
+          `history["warnings"]`, when the result does not match its images;
+          `history["silhouette_iou"]` per view, `history["genus_estimate"]`, per-step arrays
+          (`history["loss"]`) and one `CycleRecord` per cycle (`history["cycles"]`);
+        * `options`: the `ReconstructOptions` that ran;
+        * `albedo` / `lighting`: photo targets: per-vertex RGB albedo and the estimated light
+          (None otherwise); `render_photo(cams)` renders the result as fitted.
+
+        Inputs are not modified.
     """
     t0 = time.perf_counter()
     say = log if log is not None else (lambda line: None)
@@ -199,7 +221,7 @@ def reconstruct(
         rec = _topology_checked(rec, setup, say)
     if setup.options.fill_unseen and setup.targets.kind == "photo":
         rec = _filled(rec, cams, say)
-    rec = _subdivided(rec, say) if setup.options.subdivide else rec
+    rec = _subdivided_if_coarse(rec, cams, say) if setup.options.subdivide else rec
     return _at_full_size(rec, setup, say)
 
 
@@ -243,6 +265,19 @@ def _subdivided(rec: Reconstruction, say: Callable[[str], None],
     sub = phong_subdivision(rec.mesh, values=rec.albedo)
     say(f"subdivided: {int(rec.mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, {why}")
     return dataclasses.replace(rec, mesh=sub.mesh, albedo=sub.values)
+
+
+def _subdivided_if_coarse(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` through one Phong subdivision when its median edge is longer than `SUBDIVIDE_EDGE_PX` at
+    the images' own size (`ReconstructOptions.subdivide`), else as fitted (said)."""
+    v, f = rec.mesh.to_numpy()
+    px = _median_edge_px(np.asarray(v, np.float64), np.asarray(f), cams)
+    if px <= SUBDIVIDE_EDGE_PX:
+        say(f"not subdivided: the median edge is {px:.1f} px at {cams.width}x{cams.height}, as fine as the images "
+            f"resolve ({SUBDIVIDE_EDGE_PX:g} px or less)")
+        return rec
+    return _subdivided(rec, say, f"the median edge {px:.1f} px at {cams.width}x{cams.height}; the new vertices on the "
+                                 f"smooth surface through the fitted ones (Phong; ReconstructOptions.subdivide=False: off)")
 
 
 def _median_edge_px(v: np.ndarray, f: np.ndarray, cams: Cameras) -> float:

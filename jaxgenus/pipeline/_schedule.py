@@ -47,16 +47,11 @@ def detail_floor(setup: Setup, options: ReconstructOptions, start: Mesh) -> int:
     """The finest level (downsampling factor, a power of two) worth fitting photos or silhouettes at:
     the one whose pixels are half the edge length the face budget allows on the start's surface
     (its area in equilateral faces). The albedo lives on the vertices; in finer images the photos' texture, which it cannot
-    hold, moves the surface instead (DTU scan65, 41 photos, 12k faces, edges of 24 px at full size:
-    held-out PSNR 21.1, 22.8, 22.7 and 22.0 dB when the finest level is 1/16, 1/8, 1/4 and 1/1;
-    this rule picks 1/8). Silhouettes too: their outline is no finer than the mesh's edges, and
-    the full-size level samples one view a step (masks of the same capture: 21.97 dB fitted to
-    1/4, 21.70 dB to 1/1). Normal maps are fitted to the full size (their shading shows detail
-    at every pixel: skull at 512^2, CD 0.83x the 128^2 run's). With photo-consistency the pixels
-    are a quarter of the edge: the term compares the views' texture with each other, not with the
-    albedo, and places the surface to a fraction of a pixel (DTU scan65 at 1/4 size, 12k faces:
-    held-out PSNR 23.42 dB at the half-edge level, 23.66 dB one level finer; 30k faces there:
-    23.65 dB)."""
+    hold, moves the surface instead. Silhouettes too: their outline is no finer than the mesh's
+    edges, and the full-size level samples one view a step. Normal maps are fitted to the full size
+    (their shading shows detail at every pixel). With photo-consistency the pixels are a quarter of
+    the edge: the term compares the views' texture with each other, not with the albedo, and places
+    the surface to a fraction of a pixel (measurements: docs/results.md, "Captures at full size")."""
     if setup.targets.kind == "normals":
         return 1
     v, f = start.to_numpy()

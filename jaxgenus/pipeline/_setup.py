@@ -148,11 +148,8 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
     faces of `DETAIL_EDGE`-pixel edges). When that is 4 x `max_faces` or more (at the budget, edges
     of 8 px or longer: the photos' finest levels are left out, `detail_floor`), the budget rises
     towards it, to at most `options.detail_faces` (a multiple of 1000). Otherwise, and when `hull`
-    is None or `detail_faces` is not above `max_faces`: `max_faces`. DTU scan65 (2 CPU cores): at
-    1600x1200 the photos resolve 490k faces, and 40k faces instead of 12k took the held-out
-    re-projection PSNR from 23.23 to 23.91 dB (472 s against 196 s); its copies at 1/4 size
-    resolve 30k, where 30k faces gave 23.53 dB against 23.51 dB in 270 s against 156 s, so
-    they keep 12k (docs/photometric.md)."""
+    is None or `detail_faces` is not above `max_faces`: `max_faces` (docs/results.md, "Photo-consistency": "The face
+    budget follows the images")."""
     budget = options.face_budget
     if (kind != "photo" or options.remesh is None or options.detail_faces <= budget or hull is None
             or options.optimize.weights.consistency <= 0 or views_layout(n_views, options.devices)[0] is not None):
@@ -256,8 +253,7 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
     (`ReconstructOptions.stereo_carve`) as a map of occupancy grids, and `Setup.stereo`; `(None, None)`
     for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over devices.
     The carving needs photos of a fine texture at the stereo size (`FINE_TEXTURE`): on smooth shading
-    two views agree on wrong depths too, and a wrong carve takes true volume from the start (kitten,
-    constant albedo, 128²: CD 0.00263 without the carving, 0.00333 and 0.00308 with it, two seeds)."""
+    two views agree on wrong depths too, and a wrong carve takes true volume from the start."""
     if (tg.kind != "photo" or (options.stereo_carve <= 0 and options.optimize.weights.stereo <= 0)
             or views_layout(len(cams), options.devices)[0] is not None):
         return None, None

@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Array, Int
 
 from jaxgenus.geometry import Cameras
-from jaxgenus.geometry import Mesh
+from jaxgenus.geometry import Mesh, settings_repr
 from jaxgenus.rendering._faces import Faces, check_inputs, check_scalar, face_setup
 from jaxgenus.rendering._sharded import per_device, view_sharding
 from jaxgenus.rendering._plan import RasterPlan, plan_render, static_plan
@@ -34,7 +34,7 @@ SHADINGS = ("flat", "smooth")
 _BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0)}
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, repr=False)
 class RenderSettings:
     """The renderer's settings an optimizer or a verdict passes to `render` (immutable, hashable).
 
@@ -45,6 +45,10 @@ class RenderSettings:
         shading: photos: `"flat"` (a colour per face) or `"smooth"` (per vertex, interpolated
             over the faces); `jaxgenus.render_photo`. Not a keyword of `render` (`kwargs`).
     """
+
+    def __repr__(self) -> str:
+        return settings_repr(self)
+
 
     sigma: float = 0.1
     gamma: float = 0.01
