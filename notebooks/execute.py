@@ -3,8 +3,8 @@
     python notebooks/execute.py notebooks/01_quickstart.ipynb [more.ipynb ...]
 
 A stand-in for `jupyter nbconvert --execute --inplace` that needs no kernel: each code cell runs
-in one namespace (from the notebook's folder), and its outputs are stored as a notebook would
-store them: printed text as a stream, each matplotlib figure it leaves open as a PNG. The
+in one namespace, from a temporary folder (what a notebook writes, meshes and all, stays out of
+the repository), and its outputs are stored as a notebook would store them: printed text as a stream, each matplotlib figure it leaves open as a PNG. The
 environment is passed on (`JAXGENUS_DATA`, `JAXGENUS_DTU`, `JAXGENUS_NOTEBOOK_QUICK`).
 """
 
@@ -16,6 +16,7 @@ import io
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -41,8 +42,10 @@ def execute(path: Path, dpi: int = 72) -> None:
     notebook = json.loads(path.read_text())
     namespace = {"__name__": "__main__"}
     count = 0
+    path = path.resolve()
     here = os.getcwd()
-    os.chdir(path.parent)
+    scratch = tempfile.TemporaryDirectory(prefix="jaxgenus-notebook-")
+    os.chdir(scratch.name)
     try:
         for cell in notebook["cells"]:
             if cell["cell_type"] != "code":
@@ -61,6 +64,7 @@ def execute(path: Path, dpi: int = 72) -> None:
             print(f"{path.name}: cell {count} in {time.perf_counter() - t0:.0f} s, {len(outputs)} outputs", file=sys.stderr)
     finally:
         os.chdir(here)
+        scratch.cleanup()
     path.write_text(json.dumps(notebook, indent=1, ensure_ascii=False) + "\n")
     print(f"{path}: {path.stat().st_size / 1e6:.2f} MB", file=sys.stderr)
 

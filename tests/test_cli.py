@@ -114,3 +114,16 @@ def test_region_from_the_camera_file_or_the_command_line(tmp_path):
     assert np.allclose(centre, [0.5, 0, -1]) and radius == 2.0
     with pytest.raises(_InputError, match="--region"):
         _region(args("1,2", unit), alpha, cams, said.append)
+
+
+def test_every_flag_has_help_with_its_default():
+    import argparse
+
+    from jaxgenus._cli import build_parser
+
+    parser = build_parser("jaxgenus", {"primitives": None, "reconstruct": None, "demo": None}, main)
+    commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+    missing = [f"{name} {a.option_strings or a.dest}" for name, sub in commands.items() for a in sub._actions
+               if not isinstance(a, argparse._HelpAction) and a.help != argparse.SUPPRESS
+               and not (a.help and ("default" in a.help or "required" in a.help))]
+    assert set(commands) == {"primitives", "reconstruct", "demo", "batch"} and missing == []
