@@ -89,7 +89,7 @@ def write_report(rows, out: Path):
                      f"| {'yes' if r['placed'] else 'NO'} | {r['cd_l1']:.5f} | {r['iou']:.4f} | {r['seconds']:.0f} "
                      f"| {'ok' if r['ok'] else 'NOT OK'} |")
     text = "\n".join(lines) + "\n"
-    publish(out / "hidden_handles.md", text)
+    publish(out / "hidden_handles_benchmark.md", text)
     plt = pyplot()
     if plt is None:
         return

@@ -6,18 +6,39 @@ import jax
 import pytest
 
 
-@pytest.fixture(autouse=True, scope="module")
-def _fresh_executables_per_module():
-    """Drop jax's compiled executables after each test module.
+def _mapped_regions() -> int | None:
+    """How many memory mappings this process holds (Linux), None where that cannot be read."""
+    try:
+        with open("/proc/self/maps", "rb") as f:
+            return sum(1 for _ in f)
+    except OSError:
+        return None
 
-    XLA CPU keeps every executable it compiles, each with its own JIT-code memory
-    mappings; one process running the whole suite (hundreds of shapes, plans and
-    buckets) otherwise runs out of them and crashes inside the compiler
-    (docs/reconstruction.md). Tests count compilations only within a test.
+
+def _mapping_limit() -> int:
+    try:
+        with open("/proc/sys/vm/max_map_count") as f:
+            return int(f.read())
+    except (OSError, ValueError):
+        return 65530
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _fresh_executables_when_mappings_run_low():
+    """Drop jax's compiled executables after a test module once the process holds many mappings.
+
+    XLA CPU keeps every executable it compiles, each with its own JIT-code memory mappings; one
+    process running the whole suite (hundreds of shapes, plans and buckets) otherwise runs out
+    of them and crashes inside the compiler (`LLVM ERROR: Unable to allocate section memory`,
+    docs/results.md). Until then the executables stay, so modules that fit the same small scenes
+    share their programs. Where the count cannot be read, every module starts fresh. Tests
+    count compilations only within a test.
     """
     yield
-    jax.clear_caches()
-    gc.collect()
+    held = _mapped_regions()
+    if held is None or held > _mapping_limit() // 3:
+        jax.clear_caches()
+        gc.collect()
 
 
 def shared_meshes_dir() -> Path | None:

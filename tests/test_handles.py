@@ -102,7 +102,7 @@ def test_reconstruct_takes_the_hidden_handles_from_the_images_in_user_units(plat
 
     truth, cams, images, scale, shift = plate_in_mm
     genus = 4
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=60)
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=30)
     rec = jg.reconstruct(images, cams, genus, targets="normals", options=opts, key=jax.random.key(0))
     sources = [h["source"] for h in rec.history["handles"]]
     assert rec.genus == 4 and rec.history["start"].startswith("fit+images"), rec.history["start"]
@@ -193,7 +193,7 @@ def test_without_a_genus_the_holes_the_images_show_are_counted_and_opened(plate_
 
     truth, cams, images, scale, shift = plate_in_mm
     genus = 4
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=60)
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=30)
     lines = []
     rec = jg.reconstruct(images, cams, options=opts, key=jax.random.key(0), log=lines.append)
     est = rec.history["genus_estimate"]

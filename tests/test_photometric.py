@@ -217,7 +217,7 @@ def test_reconstruct_photos_recovers_shape_albedo_and_light():
     albedo = lambda p: _pattern((p - np.array([100.0, -20.0, 5.0])) / 40.0)
     photos = raycast_lambert(cams, world, light_direction=light, ambient=0.25, albedo=albedo, supersample=2)
     rec = jg.reconstruct(photos, cams, 1, targets="photo",
-                         options=jg.ReconstructOptions(n_cycles=3, steps_per_cycle=80))
+                         options=jg.ReconstructOptions(n_cycles=3, steps_per_cycle=40))
     assert rec.genus == 1 and rec.history["ok"], rec.history["warnings"]
     verts = rec.mesh.to_numpy()[0]
     assert rec.albedo.shape == (len(verts), 3) and np.all(rec.albedo >= 0)

@@ -98,7 +98,7 @@ def test_reconstruct_takes_large_images_through_the_schedule():
     torus comes out with its genus and a good fit, and the history says what ran."""
     cams = jg.sphere_cameras(12, radius=3.0, resolution=256)
     targets = jg.render_targets(jg.builtin_scene("torus"), cams)
-    opts = jg.ReconstructOptions().updated(n_cycles=3, steps_per_cycle=60, crop=64, max_faces=4000, refits=0)
+    opts = jg.ReconstructOptions().updated(n_cycles=3, steps_per_cycle=30, crop=64, max_faces=4000, refits=0)
     rec = jg.reconstruct(targets, cams, 1, options=opts)
     res = rec.history["resolution"]
     assert [r["factor"] for r in res] == [2, 2, 1]

@@ -77,7 +77,7 @@ RECONSTRUCT = textwrap.dedent(
     cams = jg.sphere_cameras(10, resolution=48)  # 10 views on 4 devices: 3, 3, 2 + padding, 2 + padding
     truth = jg.builtin_scene("torus")
     targets = jg.render_targets(truth, cams)
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=40, devices=devices)
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=20, devices=devices)
     rec = jg.reconstruct(targets, cams, 1, options=opts)
     cd = jg.metrics.chamfer_distance(rec.mesh, truth).l1
     if devices == 4:  # the views named (as a process holding them passes them): laid out alike, the same mesh

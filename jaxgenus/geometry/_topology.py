@@ -153,15 +153,13 @@ def component_genera(mesh: Mesh) -> list[int]:
     nf = r["n_faces"]
     faces = np.asarray(mesh.faces[:nf])
     labels = np.asarray(r["face_component"][:nf])
-    genera = []
-    for c in range(r["n_components"]):
-        fc = faces[labels == c]
-        n_v = np.unique(fc).size
-        e = np.sort(np.concatenate([fc[:, [0, 1]], fc[:, [1, 2]], fc[:, [2, 0]]]), axis=1)
-        n_e = np.unique(e, axis=0).shape[0]
-        chi = n_v - n_e + fc.shape[0]
-        genera.append((2 - chi) // 2)
-    return genera
+    # closed and edge-manifold: every edge has two faces, so a component of F faces has 3F/2 edges
+    # and chi = V - 3F/2 + F
+    n_f = np.bincount(labels, minlength=r["n_components"])
+    vertex_label = np.full(int(faces.max()) + 1, -1)
+    vertex_label[faces.ravel()] = np.repeat(labels, 3)
+    n_v = np.bincount(vertex_label[vertex_label >= 0], minlength=r["n_components"])
+    return [int((2 - (int(v) - int(f) // 2)) // 2) for v, f in zip(n_v, n_f)]
 
 
 def genus(mesh: Mesh) -> int:

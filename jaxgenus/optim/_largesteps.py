@@ -19,7 +19,7 @@ together with its true relative residual.
 
 It replaced a hand-written PCG with the same stopping rule: same iterations
 and residuals, 0.62-1.01 of its time per solve (about 15% faster typically)
-but 1-3 s more compile time (docs/stability.md, `benchmarks/solve.py`).
+but more compile time (docs/results.md, `benchmarks/solve.py`).
 Three lineax settings make it match (measured, float32):
 
 * `rtol=0, atol=rtol * ||b_c||, norm=` the 2-norm: lineax's default test is
