@@ -1,3 +1,5 @@
+import time
+
 import jax
 import numpy as np
 import pytest
@@ -77,7 +79,11 @@ def test_reconstruct_returns_the_subdivided_fit_only_where_it_is_coarser_than_th
     opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=20, initial_faces=600, refits=0,
                                            initial_edge_length=4.0, final_edge_length=4.0)
     lines = []
+    wall = time.perf_counter()
     on = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(1), log=lines.append)
+    wall = time.perf_counter() - wall
+    # the history times the whole call and counts the faces of the mesh returned, after the subdivision
+    assert 0.9 * wall <= on.history["seconds"] <= wall and on.history["faces"] == int(on.mesh.n_faces)
     off = jg.reconstruct(img, cams, 1, options=opts.updated(subdivide=False), key=jax.random.key(1))
     assert int(on.mesh.n_faces) == 4 * int(off.mesh.n_faces) and on.genus == off.genus == 1
     vo, _ = off.mesh.to_numpy()

@@ -174,7 +174,8 @@ class History(_Readable):
             since the start at each cycle's last step, NaN elsewhere).
             `history["loss"]` reads `history.steps["loss"]`.
         cycles: one `CycleRecord` per cycle (the polish cycles last).
-        seconds: wall time of the run (callbacks excluded).
+        seconds: wall time of the whole `reconstruct` call, every stage included (callbacks excluded).
+        faces: the face count of the returned mesh (the one the CLI writes).
         requested_genus: the genus asked for.
         start: where the start mesh came from (`Start.kind`).
         tunnels: handles drilled into a visual hull of too low a genus.
@@ -233,6 +234,7 @@ class History(_Readable):
     handles: tuple[HandleRecord, ...] = ()
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)
+    faces: int = 0
 
     def __getitem__(self, key: str) -> Any:
         if key in self.steps:

@@ -204,10 +204,12 @@ def reconstruct(
 
         Inputs are not modified.
     """
-    t0 = time.perf_counter()
+    t0, waited = time.perf_counter(), [0.0]
     say = log if log is not None else (lambda line: None)
     key = jax.random.key(0) if key is None else key
     _check_arguments(genus, options)
+    if callback is not None:
+        callback = _timed(callback, waited)
     setup = prepare(images, cams, genus, targets, options, say, views, region)
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
@@ -222,7 +224,20 @@ def reconstruct(
     if setup.options.fill_unseen and setup.targets.kind == "photo":
         rec = _filled(rec, cams, say)
     rec = _subdivided_if_coarse(rec, cams, say) if setup.options.subdivide else rec
-    return _at_full_size(rec, setup, say)
+    rec = _at_full_size(rec, setup, say)
+    return dataclasses.replace(rec, history=dataclasses.replace(
+        rec.history, seconds=time.perf_counter() - t0 - waited[0], faces=int(rec.mesh.n_faces)))
+
+
+def _timed(callback: Callable, waited: list[float]) -> Callable:
+    """`callback` adding the seconds it takes to `waited[0]` (the run's time leaves them out)."""
+    def timed(*args):
+        t = time.perf_counter()
+        try:
+            return callback(*args)
+        finally:
+            waited[0] += time.perf_counter() - t
+    return timed
 
 
 def _topology_checked(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
