@@ -80,7 +80,8 @@ def test_8_bit_photos_sweep_as_their_float_copies(scene):
 
 
 def test_the_right_surface_stays_and_fixed_vertices_do_not_move(scene):
-    cams, sphere, photos, pixel = scene
+    cams, _, photos, pixel = scene
+    sphere = trimesh.creation.icosphere(subdivisions=4)  # its vertices lie on the ray-cast surface
     v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
     fixed = v[:, 0] > 0.9
     out = fit_photo_depth((v, f), cams, photos, fixed=fixed)
@@ -92,6 +93,7 @@ def test_the_right_surface_stays_and_fixed_vertices_do_not_move(scene):
 def test_a_surface_without_texture_is_left_alone(scene):
     cams, sphere, _, _ = scene
     flat = raycast_lambert(cams, sphere, light_direction=LIGHT, ambient=1.0, albedo=(0.6, 0.5, 0.4))
+    sphere = trimesh.creation.icosphere(subdivisions=3)  # no vertex may move, whatever the mesh
     out = fit_photo_depth(sphere, cams, flat)
     assert not out.measured.any() and np.all(np.isnan(out.offset_px))
     np.testing.assert_allclose(out.vertices, sphere.vertices, atol=1e-9)
