@@ -1,5 +1,6 @@
 import gc
 import os
+import shutil
 from pathlib import Path
 
 import jax
@@ -21,6 +22,36 @@ def _mapping_limit() -> int:
             return int(f.read())
     except (OSError, ValueError):
         return 65530
+
+
+_CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
+_CACHE_LIMIT = 2 << 30  # bytes: a larger cache folder is emptied at the start of a run
+
+
+def _cache_folder(config) -> Path:
+    """`$JAX_COMPILATION_CACHE_DIR`, else `.pytest_cache/jaxgenus-xla` in the repo (git ignores it)."""
+    env = os.environ.get(_CACHE_ENV)
+    return Path(env) if env else Path(config.rootpath) / ".pytest_cache" / "jaxgenus-xla"
+
+
+def pytest_configure(config):
+    """One on-disk compilation cache, shared by the xdist workers and the subprocesses that tests
+    start (they inherit the environment): a program that two workers, two modules or a test and a
+    subprocess compile is compiled once, and a second run of the suite reuses what the first
+    compiled. Its key is the program, the jax version and the XLA flags, so a changed program is
+    compiled anew; a cache hit still counts in `count_compilations` (the event wraps the lookup).
+    A folder above 2 GiB is emptied when a run starts."""
+    folder = _cache_folder(config)
+    if not hasattr(config, "workerinput"):  # the controller (or a run without xdist)
+        size = sum(f.stat().st_size for f in folder.glob("*") if f.is_file()) if folder.is_dir() else 0
+        if size > _CACHE_LIMIT:
+            shutil.rmtree(folder, ignore_errors=True)
+        folder.mkdir(parents=True, exist_ok=True)
+        os.environ[_CACHE_ENV] = str(folder)
+        os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+    jax.config.update("jax_compilation_cache_dir", str(folder))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs",
+                      float(os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")))
 
 
 @pytest.fixture(autouse=True, scope="module")

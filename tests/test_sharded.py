@@ -69,35 +69,32 @@ def test_uneven_split_is_refused_by_name():
 
 RECONSTRUCT = textwrap.dedent(
     """
-    import sys
     import jax, numpy as np
     import jaxgenus as jg
 
-    devices = int(sys.argv[1])
     cams = jg.sphere_cameras(10, resolution=48)  # 10 views on 4 devices: 3, 3, 2 + padding, 2 + padding
     truth = jg.builtin_scene("torus")
     targets = jg.render_targets(truth, cams)
-    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=20, devices=devices)
-    rec = jg.reconstruct(targets, cams, 1, options=opts)
-    cd = jg.metrics.chamfer_distance(rec.mesh, truth).l1
-    if devices == 4:  # the views named (as a process holding them passes them): laid out alike, the same mesh
-        named = jg.reconstruct(targets, cams, 1, options=opts, views=np.arange(10))
-        assert np.array_equal(np.asarray(named.mesh.vertices), np.asarray(rec.mesh.vertices))
-    print("RESULT", rec.history["devices"], rec.genus, cd, rec.history["ok"], rec.history["resolution"][0]["views"])
+    for devices in (1, 4):  # one process, both runs: what they share is compiled once
+        opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=20, devices=devices)
+        rec = jg.reconstruct(targets, cams, 1, options=opts)
+        cd = jg.metrics.chamfer_distance(rec.mesh, truth).l1
+        if devices == 4:  # the views named (as a process holding them passes them): laid out alike, the same mesh
+            named = jg.reconstruct(targets, cams, 1, options=opts, views=np.arange(10))
+            assert np.array_equal(np.asarray(named.mesh.vertices), np.asarray(rec.mesh.vertices))
+        print("RESULT", devices, rec.history["devices"], rec.genus, cd, rec.history["ok"],
+              rec.history["resolution"][0]["views"])
     """
 )
 
 
 def test_reconstruct_on_four_devices_matches_one():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
-    found = {}
-    for devices in (1, 4):
-        proc = subprocess.run([sys.executable, "-c", RECONSTRUCT, str(devices)], capture_output=True, text=True,
-                              env=env, timeout=900)
-        line = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT")]
-        assert proc.returncode == 0 and line, proc.stdout[-2000:] + proc.stderr[-4000:]
-        used, genus, cd, ok, views = line[0].split()[1:]
-        found[devices] = (int(used), int(genus), float(cd), ok == "True", int(views))
+    proc = subprocess.run([sys.executable, "-c", RECONSTRUCT], capture_output=True, text=True, env=env, timeout=900)
+    lines = [ln.split()[1:] for ln in proc.stdout.splitlines() if ln.startswith("RESULT")]
+    assert proc.returncode == 0 and len(lines) == 2, proc.stdout[-2000:] + proc.stderr[-4000:]
+    found = {int(asked): (int(used), int(genus), float(cd), ok == "True", int(views))
+             for asked, used, genus, cd, ok, views in lines}
     assert found[1][:2] == (1, 1) and found[4][:2] == (4, 1), found
     # CD within 1.3x, verdict ok: the two runs sample different views per step (one per device), so their
     # 80 steps differ by chance: 1.155x on one 2-core machine, below 1.15x on another

@@ -1,7 +1,7 @@
-"""The optimize/remesh cycles of `reconstruct`: one cycle body, two drivers.
+"""The optimize/remesh cycles of `reconstruct`: one cycle, two drivers.
 
-`cycle` is one cycle: `optimize_steps` (a `lax.scan` of large-steps uniform Adam
-on the soft-raster loss), the rasterizer's overflow count at the result (with a
+A cycle is `optimize_steps` (a `lax.scan` of large-steps uniform Adam on the
+soft-raster loss), the rasterizer's overflow count at the result (with a
 JAX-splat plan only: the native CPU kernel draws every face whole), and,
 when the cycle's target edge length is > 0, the native V-cycle remesher through
 the XLA FFI, carrying the Adam moments and, in photometric fits, the albedo
@@ -9,10 +9,12 @@ and its moments (the rest shape of the inversion penalty
 becomes the new shape). Host clock readings after the optimizer and after the
 remesh time the two parts in both drivers.
 
-* `run_per_cycle`: one jit-compiled `cycle` per cycle, driven from Python; each
-  cycle fits its own pyramid level (`levels`).
-* `run_one_jit`: every cycle in one compiled `lax.scan` of the same `cycle`
-  (`ReconstructOptions.one_jit`).
+* `run_per_cycle`: each cycle as two compiled programs driven from Python, the optimizer
+  block (`optimizer_block`) and the remesh, timed on the host between them (no host
+  callback in either, so JAX's persistent compilation cache can hold them); each cycle
+  fits its own pyramid level (`levels`).
+* `run_one_jit`: every cycle in one compiled `lax.scan` of `cycle`, which reads the host
+  clock through ordered callbacks (`ReconstructOptions.one_jit`).
 
 `run_polish` then runs the closing polish of photo targets fitted with photo-consistency
 (`ReconstructOptions.polish_cycles`): more cycles of the finest level without remeshing, on
@@ -46,7 +48,8 @@ from jaxgenus.pipeline._history import CycleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import RasterPlan, plan_render, render
 
-__all__ = ["CycleOutput", "CycleRun", "Level", "cycle", "polish_count", "run_one_jit", "run_per_cycle", "run_polish"]
+__all__ = ["CycleOutput", "CycleRun", "Level", "cycle", "optimizer_block", "polish_count", "run_one_jit", "run_per_cycle",
+           "run_polish"]
 
 _WRAP = 1 << 31  # the host clock is read in microseconds modulo 2^31 (int32): it wraps every 36 min
 
@@ -98,7 +101,8 @@ class CycleRun:
         steps: per-step arrays of every cycle, concatenated (`RECORD_KEYS` and `time`).
         cycles: one `CycleRecord` per cycle.
         plans: distinct rasterizer plans used.
-        compilations: new compiled executables per program (`"cycle"`, `"all_cycles"`).
+        compilations: new compiled executables per program (`"cycle"`: optimizer blocks, `"remesh"`,
+            `"all_cycles"`).
         callback_seconds: time spent in the caller's callback (not part of the run).
     """
 
@@ -138,19 +142,25 @@ def _remesh_state(state: OptimizerState, length, options: RemeshOptions):
     return new_state, info.status
 
 
+def _overflow(state, cams, opt: OptimizeOptions):
+    """Faces drawn incompletely (only a planned splat can truncate them)."""
+    if opt.render is None or opt.render.plan is None:
+        return jnp.zeros((), jnp.int32)
+    _, info = render(state.mesh, cams, channels=("alpha",), sigma=opt.render.sigma, plan=opt.render.plan,
+                     return_info=True)
+    return info.n_overflow
+
+
 def cycle(state, cams, targets, outside, valid, neighbours, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
           remesh_options: RemeshOptions | None):
-    """One cycle: `n_steps` optimizer steps at `lr_scale` (`outside`: the targets' outside-distance
-    maps, or None), then a remesh to `length` (world units) if `length > 0` and `remesh_options`."""
+    """One cycle in one program (the scan of `run_one_jit`): `n_steps` optimizer steps at `lr_scale`
+    (`outside`: the targets' outside-distance maps, or None), then a remesh to `length` (world
+    units) if `length > 0` and `remesh_options`; the host clock is read in the program."""
     clock = jax.ShapeDtypeStruct((), jnp.int32)
     t_start = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
     lr_scale = lr_scale * (1.0 + 0.0 * t_start.astype(lr_scale.dtype))  # the optimizer runs after t_start
     state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid, neighbours)
-    overflow = jnp.zeros((), jnp.int32)
-    if opt.render is not None and opt.render.plan is not None:  # only a planned splat can truncate faces
-        _, info = render(state.mesh, cams, channels=("alpha",), sigma=opt.render.sigma, plan=opt.render.plan,
-                         return_info=True)
-        overflow = info.n_overflow
+    overflow = _overflow(state, cams, opt)
     t_opt = io_callback(_clock_us, clock, record.loss[-1], ordered=True)
     status = jnp.int32(-1)
     length = length * (1.0 + 0.0 * t_opt.astype(length.dtype))  # the remesh runs after t_opt is read
@@ -165,8 +175,39 @@ def cycle(state, cams, targets, outside, valid, neighbours, lr_scale, length, *,
     return state, CycleOutput(record, overflow, status, (t_start, t_opt, t_end), state.mesh)
 
 
+@jax.jit(static_argnames=("n_steps", "opt"), donate_argnames=("state",))
+def optimizer_block(state, cams, targets, outside, valid, neighbours, lr_scale, *, n_steps: int,
+                    opt: OptimizeOptions):
+    """A cycle's `n_steps` optimizer steps and the faces drawn incompletely after them."""
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid, neighbours)
+    return state, record, _overflow(state, cams, opt)
+
+
+_remesh_jit = jax.jit(_remesh_state, static_argnames=("options",), donate_argnames=("state",))
+
+
+def _timed_cycle(state, level: Level, lr_scale: float, length: float, *, n_steps: int, opt: OptimizeOptions,
+                 remesh_options: RemeshOptions | None):
+    """`(state, out, compiled)`: one cycle as two programs, the optimizer block and (when `length > 0`
+    and `remesh_options`) the remesh, timed on the host between them. No host callback in either,
+    so both can come from JAX's persistent compilation cache. `out` is a `CycleOutput` on the host;
+    `compiled`: the new executables of each (`"cycle"`, `"remesh"`)."""
+    with count_compilations() as counts:
+        t_start = _clock_us(None)
+        state, record, overflow = optimizer_block(state, level.cameras, level.targets, level.outside, level.valid,
+                                                  level.neighbours, jnp.float32(lr_scale), n_steps=n_steps, opt=opt)
+        record, overflow = jax.device_get((record, overflow))
+        t_opt = _clock_us(None)
+        status = np.int32(-1)
+        if remesh_options is not None and length > 0:
+            state, status = _remesh_jit(state, jnp.float32(length), remesh_options)
+            status = jax.device_get(status)
+        t_end = _clock_us(None)
+    out = CycleOutput(record, overflow, status, (t_start, t_opt, t_end), jax.device_get(state.mesh))
+    return state, out, {"cycle": counts["optimizer_block"], "remesh": counts["_remesh_state"]}
+
+
 _STATIC = ("n_steps", "opt", "remesh_options")
-_cycle_jit = jax.jit(cycle, static_argnames=_STATIC, donate_argnames=("state",))
 
 
 @jax.jit(static_argnames=_STATIC, donate_argnames=("state",))
@@ -249,27 +290,21 @@ def run_per_cycle(state, levels: list[Level], world_lengths, options: Reconstruc
     after (0: none). `t0` is the run's start (`perf_counter`); `callback(row, mesh)` is called
     after every cycle, and the time spent in it is reported, not counted; `estimate(rows)`: the
     seconds the fit still needs after the cycles `rows` (the rows' `eta`)."""
-    steps, cycles, plans, compiled, waited = [], [], set(), 0, 0.0
+    steps, cycles, plans, compiled, waited = [], [], set(), {"cycle": 0, "remesh": 0}, 0.0
     n = options.steps_per_cycle
     for c, level in enumerate(levels):
         tc = time.perf_counter()
         plan = _cycle_plan(state.mesh, level.cameras, options)
         plans.add(plan)
-        with count_compilations() as counts:
-            state, out = _cycle_jit(
-                state, level.cameras, level.targets, level.outside, level.valid, level.neighbours,
-                jnp.float32(options.lr_decay**c),
-                jnp.float32(world_lengths[c]), n_steps=n, opt=_optimize_options(options, plan, level),
-                remesh_options=options.remesh,
-            )
-            out = jax.device_get(out)
+        state, out, counts = _timed_cycle(state, level, options.lr_decay**c, float(world_lengths[c]), n_steps=n,
+                                          opt=_optimize_options(options, plan, level), remesh_options=options.remesh)
         now = time.perf_counter()
         steps.append(_host_steps(out.record, n, now - t0 - waited))
-        row = _row(c, out, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1], compilations=counts["cycle"],
-                   seconds=now - tc, elapsed=now - t0 - waited)
-        compiled += counts["cycle"]
+        row = _row(c, out, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1],
+                   compilations=sum(counts.values()), seconds=now - tc, elapsed=now - t0 - waited)
+        compiled = {k: compiled.get(k, 0) + v for k, v in counts.items()}
         waited += _reported(row, out.mesh, cycles, estimate, callback)
-    return CycleRun(state, _joined(steps), tuple(cycles), len(plans), {"cycle": compiled, "all_cycles": 0}, waited)
+    return CycleRun(state, _joined(steps), tuple(cycles), len(plans), {**compiled, "all_cycles": 0}, waited)
 
 
 def _growing_plan(mesh, cams, world_lengths, options) -> RasterPlan:
@@ -355,15 +390,12 @@ def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: flo
     state = init_optimizer_state(run.state.mesh, run.state.key, albedo=app.albedo, lighting=app.lighting)
     plan = _cycle_plan(state.mesh, level.cameras, options)  # the connectivity stays: one plan
     opt, steps = _polish_options(options, level, plan), options.steps_per_cycle
-    lr = jnp.float32(options.lr_decay ** (options.n_cycles - 1))
+    lr = options.lr_decay ** (options.n_cycles - 1)
     cycles, compiled, waited = list(run.cycles), dict(run.compilations), run.callback_seconds
     all_steps = [run.steps]
     for k in range(n):
         tc = time.perf_counter()
-        with count_compilations() as counts:
-            state, out = _cycle_jit(state, level.cameras, level.targets, level.outside, level.valid, level.neighbours,
-                                    lr, jnp.float32(0.0), n_steps=steps, opt=opt, remesh_options=None)
-            out = jax.device_get(out)
+        state, out, counts = _timed_cycle(state, level, lr, 0.0, n_steps=steps, opt=opt, remesh_options=None)
         now = time.perf_counter()
         all_steps.append(_host_steps(out.record, steps, now - t0 - waited))
         row = dataclasses.replace(_row(options.n_cycles + k, out, remeshed=False, loss=all_steps[-1]["loss"][-1],
