@@ -8,6 +8,7 @@ import trimesh
 
 import jaxgenus as jg
 from jaxgenus.__main__ import main
+from jaxgenus.pipeline._setup import prepare
 from _meshes import torus
 
 
@@ -331,8 +332,8 @@ def test_thin_switch_measures_the_level_the_first_cycles_fit():
     assert rec.options.refits is None
     assert any(line.startswith("refits: 2 more fits from this result (normal maps of 256x256") for line in lines)
     assert any(line.startswith("refit 1/2: start: visual_hull+refit") for line in lines)  # (2 steps: maybe dropped)
-    full = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, coarse_resolution=0, n_cycles=1))
-    assert not full.history["fine"] and "refit" not in full.history["start"]  # fitted at its own size: none
+    at_size = dataclasses.replace(opts, coarse_resolution=0)  # fitted at its own size: neither (the run's setup)
+    assert not prepare(img, cams, 1, None, at_size, lambda line: None).fine and at_size.refit_count(256, 256) == 0
 
 
 def test_default_refits_follow_the_schedule_and_the_targets():
