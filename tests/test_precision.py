@@ -23,13 +23,15 @@ import numpy as np, jax, jax.numpy as jnp
 import jaxgenus as jg
 from _meshes import torus, torus_trimesh
 from _raycast import cell_albedo, raycast_lambert
-tm = torus_trimesh(1.0, 0.35, 48, 24)
-cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=40)
+# the scene and options of test_consistency's photo fit: its programs come from the shared cache
+tm = torus_trimesh(1.0, 0.35, 64, 32)
+cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
 view, fov = jg.geometry.cameras_to_opengl(cams)
-jg.project(jg.cameras_from_opengl(view, fov[0], height=40, width=40), jnp.zeros((4, 3)))
-photos = np.asarray(raycast_lambert(cams, tm, light_direction=(0.4, 0.8, 0.45), ambient=0.25,
-                                    albedo=cell_albedo(0.1)), np.float32)
-opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=2, polish_cycles=1)
+jg.project(jg.cameras_from_opengl(view, fov[0], height=64, width=64), jnp.zeros((4, 3)))
+light = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
+photos = np.asarray(raycast_lambert(cams, tm, light_direction=light, ambient=0.25, albedo=cell_albedo(0.1)),
+                    np.float32)
+opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=15, consistency=1.0, polish_cycles=2)
 rec = jg.reconstruct(photos, cams, 1, targets="photo", options=opts, key=jax.random.key(0))
 m = torus(1.0, 0.35, 24, 12)
 jg.render(m, cams, channels=("alpha", "depth", "shaded"), plan=jg.rendering.plan_render(m, cams))
