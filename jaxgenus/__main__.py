@@ -118,51 +118,33 @@ def _exit_code(rec) -> int:
 
 
 def _options(args):
+    """The options of a run: the `--preset`'s, with `--max-faces`, `--downsample`, `--devices` and
+    every `--option` held as given (`ReconstructOptions.holding`)."""
     import jaxgenus as jg
 
-    opts = jg.ReconstructOptions.nicolet() if args.nicolet else jg.ReconstructOptions()
-    opts = opts.fine() if args.fine else opts
-    change = dict(steps_per_cycle=args.steps, one_jit=args.one_jit)
-    if args.cycles:  # the count given holds, also for fine textures
-        change.update(n_cycles=args.cycles, texture_cycles=0)
-    if args.max_faces:
-        if opts.remesh is not None:
-            change.update(max_faces=args.max_faces, detail_faces=0)  # the budget given holds
-        change["initial_faces"] = min(opts.initial_faces, args.max_faces)
-    if args.edge_length:
-        change.update(final_edge_length=args.edge_length, initial_edge_length=max(opts.initial_edge_length, args.edge_length))
-    if args.downsample is not None:
-        change["downsample"] = args.downsample
-    if getattr(args, "devices", None) is not None:
-        change["devices"] = args.devices
-    if args.coarse_resolution is not None:
-        change["coarse_resolution"] = args.coarse_resolution
-    if args.crop is not None:
-        change["crop"] = args.crop
-    if args.lighting is not None:
-        change["lighting"] = args.lighting
-    if args.hidden_handles is not None:
-        change["hidden_handles"] = args.hidden_handles
-    if getattr(args, "photo_consistency", None) is not None:
-        change["consistency"] = args.photo_consistency
-    if getattr(args, "albedo_edges", None) is not None:
-        change["albedo_edges"] = args.albedo_edges
-    if getattr(args, "shading", None) is not None:
-        change["shading"] = args.shading
-    if getattr(args, "shading_ratio", None) is not None:  # 0: off, also for fine textures
-        change.update(shading_ratio=args.shading_ratio, **({} if args.shading_ratio else {"texture_ratio": 0.0}))
-    if getattr(args, "stereo", None) is not None:  # 0: no stereo at all (neither the start nor the term)
-        change.update(stereo=args.stereo, **({} if args.stereo else {"stereo_carve": 0.0}))
-    if getattr(args, "polish_cycles", None) is not None:  # 0: none, also for fine textures
-        change.update(polish_cycles=args.polish_cycles, **({} if args.polish_cycles else {"texture_polish": 0}))
-    if args.refits is not None:
-        change["refits"] = args.refits
-    if args.refit_carve is not None:
-        change["refit_carve"] = args.refit_carve
+    base = jg.ReconstructOptions.nicolet() if args.preset.startswith("nicolet") else jg.ReconstructOptions()
+    base = base.fine() if args.preset.endswith("fine") else base
+    change = {name: getattr(args, name) for name in ("max_faces", "downsample", "devices")
+              if getattr(args, name, None) is not None}
     for item in args.option or []:
         name, value = _setting(item)
         change[name] = value
-    return opts.updated(**change)
+    return base.holding(**change)
+
+
+def _settings_list(opts) -> str:
+    """Every setting `--option` reaches, `name=value` per line, grouped by where it lives."""
+
+    parts = [("ReconstructOptions", opts), ("OptimizeOptions", opts.optimize), ("LossWeights", opts.optimize.weights),
+             ("RenderSettings", opts.render), ("RemeshOptions", opts.remesh)]
+    lines = []
+    for title, part in parts:
+        if part is None:
+            continue
+        names = [f.name for f in dataclasses.fields(part) if not dataclasses.is_dataclass(getattr(part, f.name))
+                 and f.name not in ("optimize", "remesh", "weights", "render")]
+        lines.append(f"{title}: " + ", ".join(f"{n}={getattr(part, n)!r}" for n in names))
+    return "\n".join(lines)
 
 
 def _setting(item: str):
@@ -179,6 +161,21 @@ def _setting(item: str):
     return name.strip(), value
 
 
+def _mask_source(text):
+    """`(masks folder, background, threshold)` of `--masks`: a folder, or `white` / `black` with an optional
+    `:T` threshold (default 0.1)."""
+    colour, _, t = (text or "").partition(":")
+    if colour not in ("white", "black"):
+        return text, None, 0.1
+    try:
+        threshold = float(t) if t else 0.1
+    except ValueError:
+        threshold = -1.0
+    if not 0.0 < threshold < 1.0:
+        raise _UsageError(f"--masks {text}: expected white or black with a threshold T in (0, 1) after ':', got {t!r}")
+    return None, colour, threshold
+
+
 def _captured(args, say, devices):
     """Images and cameras from files, paired; prints what was read and how it was paired. With
     processes joined, each reads only the views its devices render (`held_views`); returns
@@ -188,8 +185,9 @@ def _captured(args, say, devices):
     import jaxgenus as jg
 
     share = jax.process_count() > 1
-    loaded = jg.load_images(args.images, masks=args.masks, background=args.background, targets=args.targets,
-                            background_threshold=args.threshold,
+    masks, background, threshold = _mask_source(args.masks)
+    loaded = jg.load_images(args.images, masks=masks, background=background, targets=args.targets,
+                            background_threshold=threshold,
                             views=(lambda n: jg.optim.held_views(n, devices)) if share else None)
     size = loaded.images.shape[1:3]
     cams, cam_names = jg.load_cameras(args.cameras, image_size=tuple(int(x) for x in size))
@@ -257,7 +255,7 @@ def _check_outputs(args):
     _check_writable(out)
     if getattr(args, "downsample", None) is not None and args.downsample < 1:
         raise _UsageError(f"--downsample: expected an integer >= 1 (1: the images as they are), got {args.downsample}")
-    inputs = [Path(p) for p in (args.mesh, args.images, args.masks, args.cameras) if p]
+    inputs = [Path(p) for p in (args.mesh, args.images, _mask_source(args.masks)[0], args.cameras) if p]
     for target in (out, out.with_suffix(".json")):
         for src in inputs:
             if src.exists() and target.exists() and target.resolve() == src.resolve():
@@ -287,6 +285,10 @@ def _reconstruct(args) -> int:
 
     import jaxgenus as jg
 
+    if "list" in (args.option or []):
+        given = argparse.Namespace(**{**vars(args), "option": [o for o in args.option if o != "list"]})
+        print(_settings_list(_options(given)))
+        return EXIT_OK
     _join(args)
     _check_outputs(args)
     say = _clock(time.perf_counter())

@@ -29,7 +29,7 @@ def test_batch_writes_the_good_capture_and_reports_the_broken_one(tmp_path, caps
     root, out = tmp_path / "captures", tmp_path / "out"
     _capture(root / "good", broken=False)
     _capture(root / "broken", broken=True)  # 8 images, 6 cameras
-    code = main(["batch", str(root), "--out", str(out), "--genus", "1", "--cycles", "2", "--steps", "30"])
+    code = main(["batch", str(root), "--out", str(out), "--genus", "1", "--option", "n_cycles=2", "steps_per_cycle=30"])
     printed = capsys.readouterr().out
     assert code == 4, printed  # one capture failed
     assert (out / "good" / "mesh.obj").exists() and not (out / "broken" / "mesh.obj").exists()
@@ -38,7 +38,7 @@ def test_batch_writes_the_good_capture_and_reports_the_broken_one(tmp_path, caps
     assert rows["broken"]["exit"] == 1 and "camera" in rows["broken"]["reason"], rows["broken"]
     assert "| broken | 1 |" in (out / "summary.md").read_text()
     assert jg.genus(jg.load_mesh(out / "good" / "mesh.obj")) == 1
-    again = main(["batch", str(root), "--out", str(out), "--genus", "1", "--cycles", "2", "--steps", "30"])
+    again = main(["batch", str(root), "--out", str(out), "--genus", "1", "--option", "n_cycles=2", "steps_per_cycle=30"])
     printed = capsys.readouterr().out
     assert "good: finished before, skipped" in printed and again == 4  # the broken one is tried again
 
@@ -53,8 +53,8 @@ def test_batch_jobs_run_captures_side_by_side(tmp_path, capsys):
     root, out = tmp_path / "captures", tmp_path / "out"
     _capture(root / "good", broken=False)
     _capture(root / "broken", broken=True)
-    code = main(["batch", str(root), "--out", str(out), "--jobs", "2", "--genus", "1", "--cycles", "2",
-                 "--steps", "30"])
+    code = main(["batch", str(root), "--out", str(out), "--jobs", "2", "--genus", "1", "--option", "n_cycles=2",
+                 "steps_per_cycle=30"])
     printed = capsys.readouterr().out
     assert code == 4, printed
     rows = {r["capture"]: r for r in json.loads((out / "summary.json").read_text())}

@@ -25,7 +25,7 @@ def test_reconstruct_refuses_bad_genus_and_an_output_that_overwrites_an_input(tm
         main(args + ["--genus", "two"])
     assert exc.value.code == 2
     capsys.readouterr()
-    assert main(args + ["--out", str(tmp_path / "r.obj"), "--refit-carve", "-1"]) == 1
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "refit_carve=-1"]) == 1
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "refit_carve" in err
     assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "no_such_setting=1"]) == 1
@@ -44,42 +44,52 @@ def test_reconstruct_refuses_bad_genus_and_an_output_that_overwrites_an_input(tm
         assert err.count("\n") == 1 and err.startswith("error: --out"), err
 
 
-def test_cli_settings_map_onto_the_nested_options():
+def test_cli_settings_map_onto_the_nested_options_and_hold_as_given():
     import argparse
 
-    from jaxgenus.__main__ import _options
+    from jaxgenus.__main__ import _mask_source, _options, _plan_line, _settings_list, _UsageError
 
-    base = dict(nicolet=False, fine=False, steps=150, one_jit=False, cycles=None, max_faces=20000, edge_length=None,
-                coarse_resolution=None, crop=64, lighting=None, hidden_handles=None, refits=None, refit_carve=None,
-                downsample=2, option=["learning_rate=0.05", "adaptive=True", "sigma=0.03", "lighting='directional'"])
-    opts = _options(argparse.Namespace(**base))
+    base = dict(preset="default", max_faces=20000, downsample=2, devices=None,
+                option=["learning_rate=0.05", "adaptive=True", "sigma=0.03", "lighting='directional'", "crop=64"])
+
+    def options(**change):
+        return _options(argparse.Namespace(**{**base, **change}))
+
+    opts, default = options(), jg.ReconstructOptions()
     assert opts.optimize.learning_rate == 0.05 and opts.remesh.adaptive and opts.optimize.render.sigma == 0.03
     assert opts.remesh.max_faces == 20000 and opts.optimize.crop == 64 and opts.downsample == 2
-    assert opts.detail_faces == 0  # a budget given is held (no rise from the images)
-    assert _options(argparse.Namespace(**{**base, "max_faces": None})).detail_faces == jg.ReconstructOptions().detail_faces
+    assert opts.detail_faces == 0 and opts.texture_faces == 1.0  # a budget given is held (no rise from the images)
+    assert not opts.texture_adaptive  # adaptive named: held, as for every setting named
+    assert options(max_faces=None).detail_faces == default.detail_faces
+    assert options(max_faces=1000).initial_faces == 1000  # the start fits in the budget given
     assert opts.lighting == "directional" and opts.optimize.adam_quantile == jg.OptimizeOptions().adam_quantile
-    assert opts.optimize.weights.albedo_edges == 1.0
-    edges = _options(argparse.Namespace(**{**base, "albedo_edges": 0.0, "photo_consistency": 0.5}))
+    assert opts.optimize.weights.albedo_edges == 1.0 and opts.optimize.render.shading == "flat"
+    edges = options(option=["albedo_edges=0.0", "consistency=0.5", "shading=smooth", "shading_ratio=2.5"])
     assert edges.optimize.weights.albedo_edges == 0.0 and edges.optimize.weights.consistency == 0.5
-    assert opts.optimize.render.shading == "flat"
-    smooth = _options(argparse.Namespace(**{**base, "shading": "smooth", "shading_ratio": 2.5}))
-    assert smooth.optimize.render.shading == "smooth" and smooth.optimize.weights.shading_ratio == 2.5
-    assert smooth.texture_ratio == jg.ReconstructOptions().texture_ratio
-    assert _options(argparse.Namespace(**{**base, "shading_ratio": 0.0})).texture_ratio == 0.0  # off, textures too
-    assert opts.optimize.weights.stereo == 1.0 and opts.stereo_carve == jg.ReconstructOptions().stereo_carve
-    no_stereo = _options(argparse.Namespace(**{**base, "stereo": 0.0}))
+    assert edges.optimize.render.shading == "smooth" and edges.optimize.weights.shading_ratio == 2.5
+    assert edges.texture_ratio == 0.0  # the shading ratio named holds, also for fine textures
+    assert opts.optimize.weights.stereo == 1.0 and opts.stereo_carve == default.stereo_carve
+    no_stereo = options(option=["stereo=0"])
     assert no_stereo.optimize.weights.stereo == 0.0 and no_stereo.stereo_carve == 0.0
+    assert options(option=["stereo=2.0"]).stereo_carve == default.stereo_carve
     assert (opts.polish_cycles, opts.texture_polish) == (0, 2)  # fine textures only, by default
-    assert (opts.n_cycles, opts.texture_cycles) == (4, 5)  # 5 for fine textures, unless --cycles says
-    assert _options(argparse.Namespace(**{**base, "cycles": 4})).texture_cycles == 0
-    from jaxgenus.__main__ import _plan_line
+    assert (opts.n_cycles, opts.texture_cycles) == (4, 5)  # 5 for fine textures, unless n_cycles is named
+    four = options(option=["n_cycles=4"])
+    assert four.texture_cycles == 0  # the default named explicitly holds too
     assert _plan_line(opts, "photo").startswith("4 cycles (5 for photos of a fine texture that resolve under 4x the faces) x 150 steps")
     assert _plan_line(opts, "normals").startswith("4 cycles x 150")
-    assert _plan_line(_options(argparse.Namespace(**{**base, "cycles": 4})), "photo").startswith("4 cycles x 150")
-    assert _options(argparse.Namespace(**{**base, "polish_cycles": 3})).polish_cycles == 3
-    assert _options(argparse.Namespace(**{**base, "polish_cycles": 0})).texture_polish == 0  # none, also for textures
-    nicolet = _options(argparse.Namespace(**{**base, "nicolet": True, "option": None}))
+    assert _plan_line(four, "photo").startswith("4 cycles x 150")
+    assert options(option=["polish_cycles=0"]).texture_polish == 0  # none, also for textures
+    nicolet = options(preset="nicolet", option=None)
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000
+    fine = options(preset="nicolet-fine", option=None, max_faces=None)
+    assert fine.remesh is None and fine.optimize.render.sigma == 0.03 and fine.n_cycles == 5
+    assert "n_cycles=4" in _settings_list(default) and "sigma=" in _settings_list(default)
+    assert _mask_source("masks/") == ("masks/", None, 0.1) and _mask_source(None) == (None, None, 0.1)
+    assert _mask_source("white") == (None, "white", 0.1) and _mask_source("black:0.25") == (None, "black", 0.25)
+    import pytest
+    with pytest.raises(_UsageError, match="--masks"):
+        _mask_source("white:2")
 
 
 def test_region_from_the_camera_file_or_the_command_line(tmp_path):
@@ -127,3 +137,16 @@ def test_every_flag_has_help_with_its_default():
                if not isinstance(a, argparse._HelpAction) and a.help != argparse.SUPPRESS
                and not (a.help and ("default" in a.help or "required" in a.help))]
     assert set(commands) == {"primitives", "reconstruct", "demo", "batch"} and missing == []
+
+
+def test_reconstruct_has_few_flags_in_groups():
+    """At most 20 flags (help included), each in a titled group; the rest is `--option`."""
+    import argparse
+
+    from jaxgenus._cli import build_parser
+
+    parser = build_parser("jaxgenus", {"primitives": None, "reconstruct": None, "demo": None}, main)
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["reconstruct"]
+    assert len(sub._actions) <= 20
+    grouped = {a for g in sub._action_groups if g.title not in ("options", "optional arguments") for a in g._group_actions}
+    assert [a.dest for a in sub._actions if a not in grouped and not isinstance(a, argparse._HelpAction)] == []

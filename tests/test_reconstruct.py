@@ -266,7 +266,7 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
     jg.save_mesh(gt, tmp_path / "gt.obj")
     out = tmp_path / "out.obj"
     code = main(["reconstruct", "--mesh", str(tmp_path / "gt.obj"), "--genus", "1", "--views", "8", "--res", "32",
-                 "--cycles", "2", "--steps", "10", "--out", str(out)])
+                 "--option", "n_cycles=2", "steps_per_cycle=10", "--out", str(out)])
     text = capsys.readouterr().out
     assert code == 0 and "chamfer" in text and "ETA" in text
     assert jg.genus(jg.load_mesh(out)) == 1
@@ -275,7 +275,7 @@ def test_cli_reconstruct_writes_mesh_and_history(tmp_path, capsys):
     assert "[##] cycle 2/2 " in text and "refit" not in text
     other = tmp_path / "seed1.obj"  # another seed samples other views each step: another result
     assert main(["reconstruct", "--mesh", str(tmp_path / "gt.obj"), "--genus", "1", "--views", "8", "--res", "32",
-                 "--cycles", "2", "--steps", "10", "--seed", "1", "--out", str(other)]) == 0
+                 "--option", "n_cycles=2", "steps_per_cycle=10", "--seed", "1", "--out", str(other)]) == 0
     a, b = jg.load_mesh(out).to_numpy()[0], jg.load_mesh(other).to_numpy()[0]
     assert a.shape != b.shape or not np.allclose(a, b)
 

@@ -133,7 +133,7 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
               "R": R[i].tolist(), "t": t[i].tolist()} for i in range(len(cams))]
     (tmp_path / "cameras.json").write_text(json.dumps({"height": 48, "width": 48, "cameras": views}))
     base = [sys.executable, "-m", "jaxgenus", "reconstruct", "--images", str(tmp_path / "images"), "--cameras",
-            str(tmp_path / "cameras.json"), "--genus", "1", "--cycles", "2", "--steps", "40"]
+            str(tmp_path / "cameras.json"), "--genus", "1", "--option", "n_cycles=2", "steps_per_cycle=40"]
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1", JAX_PLATFORMS="cpu")
     single = subprocess.run(base + ["--out", str(tmp_path / "one" / "mesh.obj")], capture_output=True, text=True,
                             env=env, timeout=900)

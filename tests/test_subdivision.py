@@ -1,3 +1,4 @@
+import dataclasses
 import time
 
 import jax
@@ -89,6 +90,22 @@ def test_reconstruct_returns_the_subdivided_fit_only_where_it_is_coarser_than_th
     vo, _ = off.mesh.to_numpy()
     np.testing.assert_allclose(on.mesh.to_numpy()[0][: len(vo)], vo, rtol=1e-6, atol=1e-6)
     assert any(line.startswith("subdivided:") for line in lines)
+    # the verdict judged the mesh returned (subdivided), not the fitted one
+    assert any(line.startswith("verdict on the mesh written (") for line in lines), lines
+    from jaxgenus.pipeline._verdict import silhouette_ious
+    written = silhouette_ious(on.mesh, cams, np.asarray(img)[..., 3], sigma=opts.render.sigma)[0]
+    np.testing.assert_allclose(on.history["silhouette_iou"], written, atol=0.01)
+    # a stage after the fit that spoils the mesh is caught by that verdict (here: a mesh shrunk by 0.7)
+    import jaxgenus.pipeline._reconstruct as stages
+
+    def shrunk(rec, cams, say):
+        v, f = rec.mesh.to_numpy()
+        return dataclasses.replace(rec, mesh=jg.Mesh.from_numpy(0.7 * v, f))
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(stages, "_subdivided_if_coarse", shrunk)
+        bad = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(1))
+    assert not bad.history["ok"] and any(w.startswith("the mesh written: silhouette IoU under") for w in bad.history["warnings"])
+    assert on.history["ok"]
     # edges of 1.5 px: as fine as the images resolve, the result is the fit (a 48-px torus in 4k faces, not 16k)
     lines = []
     fine = jg.reconstruct(img, cams, 1, options=opts.updated(initial_edge_length=1.5, final_edge_length=1.5), key=jax.random.key(1),

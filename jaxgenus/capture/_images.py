@@ -31,7 +31,7 @@ _NORMALS_SPREAD = 0.05  # directions not all along one axis (a grey photo's lie 
 _NORMALS_MIN_PIXELS = 64  # and enough pixels to tell
 _GREY_FRACTION = 0.3  # a "mask" with more grey (0.1 < m < 0.9) pixels than this is a photo
 _MASK_SUFFIXES = ("_mask", "-mask", ".mask")
-_HOW_TO_MASK = "masks (masks=DIR, CLI --masks DIR) or background='black'|'white' (CLI --background)"
+_HOW_TO_MASK = "masks (masks=DIR, CLI --masks DIR) or background='black'|'white' (CLI --masks white|black)"
 
 
 class LoadedImages(NamedTuple):

@@ -22,10 +22,11 @@ from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._schedule import CostModel, levels as fit_levels, schedule_line, world_lengths
 from jaxgenus.pipeline._setup import Setup, fine_texture
 from jaxgenus.pipeline._start import Start
+from jaxgenus.pipeline._start_stage import refit_start
 from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
 from jaxgenus.rendering import LIGHTING_SHAPES
 
-__all__ = ["FitIndex", "estimate_warnings", "fit"]
+__all__ = ["FitIndex", "estimate_warnings", "fit", "refits", "start_line"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -133,7 +134,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
         run = run_per_cycle(state, levels, lengths, options, t0, user_callback, remaining)
     if polish:
         say(f"polish: {polish} cycles of {options.steps_per_cycle} steps on the silhouettes and colour "
-            "photo-consistency only (polish_cycles=0 / --polish-cycles 0: none)")
+            "photo-consistency only (texture_polish=0 / --option polish_cycles=0: none)")
         run = run_polish(run, levels[-1], options, t0, user_callback, remaining)
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)
@@ -159,3 +160,87 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     albedo = None if app is None else np.array(app.albedo[: int(mesh.n_vertices)], np.float32)
     return Reconstruction(mesh=frame.mesh_to_world(mesh), genus=g, genus_ok=genus_ok, history=history,
                           options=options, albedo=albedo)
+
+
+# A refit that lowers the mean normal error by less than this share of it predicts a next
+# one that gains nothing (docs/results.md, "Default refits"). Default refits only.
+_MIN_REFIT_GAIN = 0.03
+
+def start_line(start: Start, genus: int, seconds: float) -> str:
+    return (f"start: {start.kind} of genus {genus}, {int(start.mesh.n_faces)} faces"
+            + (f", {start.tunnels} handles drilled (the silhouettes show fewer)" if start.tunnels else "")
+            + f" ({seconds:.1f}s)")
+
+
+def _start_of(rec: Reconstruction) -> Start:
+    """The record of the start a fit made (its mesh is replaced by a refit's)."""
+    h = rec.history
+    return Start(rec.mesh, h.start, h.hull_grid, h.tunnels, h.handles)
+
+
+def refits(rec: Reconstruction, setup: Setup, options: ReconstructOptions, n: int, key, callback,
+            say: Callable[[str], None]) -> Reconstruction:
+    """Up to `n` further fits, each from the last kept result (module doc; `ReconstructOptions.refits`)."""
+    carving = setup.options.for_refit(setup.targets.kind) is not setup.options
+    why = "" if options.refits is not None else (f" (normal maps of {setup.cams.width}x{setup.cams.height} are "
+                                                 "fitted through the resolution schedule; ReconstructOptions.refits)")
+    say(f"refits: {n} more fit{'s' if n > 1 else ''} from this result{why}"
+        + (", carving where the normals contradict the images (ReconstructOptions.refit_carve)" if carving else ""))
+    for r in range(n):
+        if not rec.genus_ok:  # nothing of the right genus to start from: keep what failed, it says why
+            break
+        step = (lambda line, r=r: say(f"refit {r + 1}/{n}: {line}"))
+        opts = setup.options.for_refit(setup.targets.kind) if carving else setup.options
+        t0 = time.perf_counter() - rec.history.seconds
+        start = refit_start(rec.mesh, _start_of(rec), setup, opts)
+        if start is None:
+            step("refit: the previous result could not be remeshed into a start; keeping it")
+            return rec
+        step(start_line(start, setup.genus, time.perf_counter() - t0 - rec.history.seconds))
+        new = fit(setup, start, opts, key, FitIndex(r + 1, 1 + n), t0=t0, callback=callback, say=step)
+        worse = _fits_worse(new.history, rec.history)
+        if worse:
+            # a carving refit that fits worse is retried once without carving (the heptoroid's
+            # tubes: a contour a pixel off reads as a contradiction); any other is final
+            retry = carving and r + 1 < n
+            step(f"fits its images worse than the fit it started from ({worse}): keeping that fit"
+                 + ("; the next refit runs without carving" if retry else ""))
+            history = dataclasses.replace(rec.history, seconds=new.history.seconds,
+                                          warnings=rec.history.warnings + [f"refit {r + 1} was dropped: {worse}"])
+            rec = dataclasses.replace(rec, history=history)
+            if not retry:
+                return rec
+            carving = False
+            continue
+        gain = _normal_gain(new.history, rec.history)
+        rec = new
+        if options.refits is None and r + 1 < n and gain < _MIN_REFIT_GAIN:
+            step(f"lowered the mean normal error by {gain:.1%} (< {_MIN_REFIT_GAIN:.0%}): no further refit")
+            break
+    return rec
+
+
+def _normal_gain(new: History, old: History) -> float:
+    """How much lower `new`'s mean normal error is than `old`'s, as a share of `old`'s
+    (inf when the targets are not normal maps: nothing to judge by)."""
+    a, b = new.normal_error_deg, old.normal_error_deg
+    if a is None or b is None or float(np.mean(b)) <= 0:
+        return float("inf")
+    return 1.0 - float(np.mean(a)) / float(np.mean(b))
+
+
+def _fits_worse(new: History, old: History) -> str:
+    """Why the fit `new` matches its images worse than `old` ("" when it does not): its
+    verdict fails where the old one passed, or its mean silhouette IoU, normal error or
+    photo error over all views is worse by more than a small tolerance."""
+    why = []
+    if old.ok and not new.ok:
+        why.append("its verdict is not ok")
+    iou_new, iou_old = float(np.mean(new.silhouette_iou)), float(np.mean(old.silhouette_iou))
+    if iou_new < iou_old - 0.005:
+        why.append(f"mean silhouette IoU {iou_new:.3f} < {iou_old:.3f}")
+    for a, b, label, tol in ((new.normal_error_deg, old.normal_error_deg, "normal error", 0.2),
+                             (new.photo_error, old.photo_error, "photo error", 0.002)):
+        if a is not None and b is not None and float(np.mean(a)) > float(np.mean(b)) + tol:
+            why.append(f"mean {label} {float(np.mean(a)):.3g} > {float(np.mean(b)):.3g}")
+    return "; ".join(why)

@@ -18,6 +18,22 @@ from jaxgenus.rendering import RenderSettings
 __all__ = ["ReconstructOptions"]
 
 
+#: A setting given by name (`ReconstructOptions.holding`) holds: these automatic choices, which would
+#: change it during a run, are then off (the fine-texture rules of `pipeline._setup.fine_texture`,
+#: the photos' detail budget; `stereo=0` also turns off the stereo carving of the start).
+HELD_BY = {
+    "n_cycles": {"texture_cycles": 0},
+    "shading_ratio": {"texture_ratio": 0.0},
+    "polish_cycles": {"texture_polish": 0},
+    "alpha": {"texture_alpha": 0.0},
+    "photo": {"texture_photo": 0.0},
+    "consistency_blur": {"texture_blur": LossWeights().consistency_blur},
+    "adaptive": {"texture_adaptive": False},
+    "max_faces": {"detail_faces": 0, "texture_faces": 1.0},
+    "stereo": {"stereo_carve": 0.0},
+}
+
+
 def _positive_int(name, v, minimum=1):
     if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
         raise ValueError(f"options.{name} must be an int >= {minimum}, got {v!r}")
@@ -158,7 +174,7 @@ class ReconstructOptions:
             images' own size goes through one `phong_subdivision` (4x the faces, the albedo carried):
             flat faces are chords that cut under curved parts by about k h^2 / 8, and the new
             vertices sit on the smooth surface through the fitted ones. A finer result is kept as
-            fitted (the images hold no finer detail). The verdict judged the fitted mesh. False:
+            fitted (the images hold no finer detail). The verdict judges the mesh returned. False:
             never (`nicolet()` sets it).
         fill_unseen: photo targets: before the subdivision, the vertices no camera sees (though
             some holds them in frame) move onto the membrane the seen surface spans around them
@@ -302,6 +318,22 @@ class ReconstructOptions:
                 raise ValueError(f"options: {sorted(changes['remesh'])} set on a run without remeshing (remesh=None)")
             out["remesh"] = dataclasses.replace(base, **changes["remesh"])
         return dataclasses.replace(self, **out)
+
+    def holding(self, **settings) -> "ReconstructOptions":
+        """`updated(**settings)` with each setting named held as given: the automatic choices that
+        would change it later in a run are off (`HELD_BY`: `n_cycles=4` stays 4 for photos of a fine
+        texture, `max_faces` is not raised for detailed photos, `stereo=0` also skips the stereo
+        carving of the start). What the command line's `--option` and `--max-faces` apply."""
+        change = dict(settings)
+        for name, value in settings.items():
+            for rule, off in HELD_BY.get(name, {}).items():
+                if rule not in settings and (name != "stereo" or not value):
+                    change[rule] = off
+        if isinstance(settings.get("max_faces"), int) and "initial_faces" not in settings:
+            change["initial_faces"] = min(self.initial_faces, int(settings["max_faces"]))
+        if self.remesh is None:  # no remeshing (nicolet()): the start's faces are the budget
+            change.pop("max_faces", None)
+        return self.updated(**change)
 
     @classmethod
     def nicolet(cls, **settings) -> "ReconstructOptions":

@@ -26,15 +26,16 @@ import jax
 import numpy as np
 
 from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, fit_photo_depth, phong_subdivision
-from jaxgenus.pipeline._fit import FitIndex, estimate_warnings, fit
+from jaxgenus.pipeline._fit import FitIndex, estimate_warnings, fit, refits, start_line
 from jaxgenus.pipeline._handles import HoleTests, hole_tests
-from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
+from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._setup import Setup, prepare
 from jaxgenus.pipeline._start import Start, remeshed_start
+from jaxgenus.pipeline._verdict import Evidence, judged_as_written
 from jaxgenus.pipeline._start_stage import (CHECK_TRIES, estimate_line, evidence_level, evidence_pixel,
                                              first_edge_length, first_start,
-                                             holes_not_had, image_handle_records, images_estimate, refit_start)
+                                             holes_not_had, image_handle_records, images_estimate)
 
 _DEPTH_MAX_FACES = 1 << 20
 #: The result is subdivided only where its median edge is longer than this many pixels at the images'
@@ -42,10 +43,6 @@ _DEPTH_MAX_FACES = 1 << 20
 SUBDIVIDE_EDGE_PX = 2.0
 
 __all__ = ["genus_estimate", "reconstruct"]
-
-# A refit that lowers the mean normal error by less than this share of it predicts a next
-# one that gains nothing (docs/results.md, "Default refits"). Default refits only.
-_MIN_REFIT_GAIN = 0.03
 
 
 def _check_arguments(genus, options):
@@ -91,7 +88,7 @@ def _first_fit(images, cams, setup: Setup, key, index: FitIndex, t0: float, call
                            key=key, views=views, region=region)
 
     start = first_start(setup, fit_genus, say)
-    say(_start_line(start, setup.genus, time.perf_counter() - t0))
+    say(start_line(start, setup.genus, time.perf_counter() - t0))
     return setup, start, fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
 
 
@@ -129,7 +126,7 @@ def _with_holes(setup: Setup, rec: Reconstruction, key, index: FitIndex, t0: flo
         return setup, dataclasses.replace(rec, history=history)
     handles = (HandleRecord("hull"),) * hull.genus + image_handle_records(tests.opened, frame)
     start = Start(mesh, "fit+images", rec.history.hull_grid, 0, handles)
-    say(_start_line(start, setup.genus, time.perf_counter() - t0))
+    say(start_line(start, setup.genus, time.perf_counter() - t0))
     return setup, fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
 
 
@@ -218,15 +215,37 @@ def reconstruct(
     if _reads_interior(setup, genus):
         setup, rec = _with_holes(setup, rec, key, index, t0, callback, say)
     if n_refits and rec.genus_ok:
-        rec = _refits(rec, setup, options, n_refits, key, callback, say)
+        rec = refits(rec, setup, options, n_refits, key, callback, say)
     if setup.targets.kind == "normals" and rec.genus_ok:
         rec = _topology_checked(rec, setup, say)
+    fitted = rec.mesh
     if setup.options.fill_unseen and setup.targets.kind == "photo":
         rec = _filled(rec, cams, say)
     rec = _subdivided_if_coarse(rec, cams, say) if setup.options.subdivide else rec
     rec = _at_full_size(rec, setup, say)
+    rec = rec if rec.mesh is fitted else _as_written(rec, setup, say)
     return dataclasses.replace(rec, history=dataclasses.replace(
         rec.history, seconds=time.perf_counter() - t0 - waited[0], faces=int(rec.mesh.n_faces)))
+
+
+def _as_written(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
+    """`rec` judged again on its mesh as written, changed after the fit's verdict (`judged_as_written`)."""
+    t0, frame, h = time.perf_counter(), setup.frame, rec.history
+    v, f = rec.mesh.to_numpy()
+    mesh = Mesh.from_numpy(((np.asarray(v, np.float64) - frame.centre) / frame.scale).astype(np.float32), f)
+    appearance = photos = None
+    if rec.albedo is not None:
+        albedo = np.zeros((mesh.vertex_capacity, 3), np.float32)
+        albedo[: len(rec.albedo)] = rec.albedo
+        appearance, photos = (albedo, rec.lighting), np.asarray(setup.images, np.float32)
+    evidence = Evidence(mesh, mesh, setup.cams, setup.targets, h.steps, h.cycles, rec.genus_ok, appearance, photos,
+                        carved_start=h.start.startswith("visual_hull"), held=setup.held,
+                        start_iou=list(h.start_silhouette_iou))
+    history, verdict = judged_as_written(h, evidence, rec.options)
+    say(f"verdict on the mesh written ({int(mesh.n_faces)} faces): {'ok' if history.ok else 'NOT OK'}; silhouette IoU "
+        f"min {min(verdict.silhouette_iou):.3f}, mean {np.mean(verdict.silhouette_iou):.3f} "
+        f"({time.perf_counter() - t0:.0f}s)")
+    return dataclasses.replace(rec, history=history)
 
 
 def _timed(callback: Callable, waited: list[float]) -> Callable:
@@ -357,83 +376,3 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
                 f"({time.perf_counter() - t0:.0f}s; ReconstructOptions.fit_photo_depth=False: off)")
         v = fitted.vertices.astype(v.dtype)
     return dataclasses.replace(rec, mesh=Mesh.from_numpy(v, f))
-
-
-def _start_line(start: Start, genus: int, seconds: float) -> str:
-    return (f"start: {start.kind} of genus {genus}, {int(start.mesh.n_faces)} faces"
-            + (f", {start.tunnels} handles drilled (the silhouettes show fewer)" if start.tunnels else "")
-            + f" ({seconds:.1f}s)")
-
-
-def _start_of(rec: Reconstruction) -> Start:
-    """The record of the start a fit made (its mesh is replaced by a refit's)."""
-    h = rec.history
-    return Start(rec.mesh, h.start, h.hull_grid, h.tunnels, h.handles)
-
-
-def _refits(rec: Reconstruction, setup: Setup, options: ReconstructOptions, n: int, key, callback,
-            say: Callable[[str], None]) -> Reconstruction:
-    """Up to `n` further fits, each from the last kept result (module doc; `ReconstructOptions.refits`)."""
-    carving = setup.options.for_refit(setup.targets.kind) is not setup.options
-    why = "" if options.refits is not None else (f" (normal maps of {setup.cams.width}x{setup.cams.height} are "
-                                                 "fitted through the resolution schedule; ReconstructOptions.refits)")
-    say(f"refits: {n} more fit{'s' if n > 1 else ''} from this result{why}"
-        + (", carving where the normals contradict the images (ReconstructOptions.refit_carve)" if carving else ""))
-    for r in range(n):
-        if not rec.genus_ok:  # nothing of the right genus to start from: keep what failed, it says why
-            break
-        step = (lambda line, r=r: say(f"refit {r + 1}/{n}: {line}"))
-        opts = setup.options.for_refit(setup.targets.kind) if carving else setup.options
-        t0 = time.perf_counter() - rec.history.seconds
-        start = refit_start(rec.mesh, _start_of(rec), setup, opts)
-        if start is None:
-            step("refit: the previous result could not be remeshed into a start; keeping it")
-            return rec
-        step(_start_line(start, setup.genus, time.perf_counter() - t0 - rec.history.seconds))
-        new = fit(setup, start, opts, key, FitIndex(r + 1, 1 + n), t0=t0, callback=callback, say=step)
-        worse = _fits_worse(new.history, rec.history)
-        if worse:
-            # a carving refit that fits worse is retried once without carving (the heptoroid's
-            # tubes: a contour a pixel off reads as a contradiction); any other is final
-            retry = carving and r + 1 < n
-            step(f"fits its images worse than the fit it started from ({worse}): keeping that fit"
-                 + ("; the next refit runs without carving" if retry else ""))
-            history = dataclasses.replace(rec.history, seconds=new.history.seconds,
-                                          warnings=rec.history.warnings + [f"refit {r + 1} was dropped: {worse}"])
-            rec = dataclasses.replace(rec, history=history)
-            if not retry:
-                return rec
-            carving = False
-            continue
-        gain = _normal_gain(new.history, rec.history)
-        rec = new
-        if options.refits is None and r + 1 < n and gain < _MIN_REFIT_GAIN:
-            step(f"lowered the mean normal error by {gain:.1%} (< {_MIN_REFIT_GAIN:.0%}): no further refit")
-            break
-    return rec
-
-
-def _normal_gain(new: History, old: History) -> float:
-    """How much lower `new`'s mean normal error is than `old`'s, as a share of `old`'s
-    (inf when the targets are not normal maps: nothing to judge by)."""
-    a, b = new.normal_error_deg, old.normal_error_deg
-    if a is None or b is None or float(np.mean(b)) <= 0:
-        return float("inf")
-    return 1.0 - float(np.mean(a)) / float(np.mean(b))
-
-
-def _fits_worse(new: History, old: History) -> str:
-    """Why the fit `new` matches its images worse than `old` ("" when it does not): its
-    verdict fails where the old one passed, or its mean silhouette IoU, normal error or
-    photo error over all views is worse by more than a small tolerance."""
-    why = []
-    if old.ok and not new.ok:
-        why.append("its verdict is not ok")
-    iou_new, iou_old = float(np.mean(new.silhouette_iou)), float(np.mean(old.silhouette_iou))
-    if iou_new < iou_old - 0.005:
-        why.append(f"mean silhouette IoU {iou_new:.3f} < {iou_old:.3f}")
-    for a, b, label, tol in ((new.normal_error_deg, old.normal_error_deg, "normal error", 0.2),
-                             (new.photo_error, old.photo_error, "photo error", 0.002)):
-        if a is not None and b is not None and float(np.mean(a)) > float(np.mean(b)) + tol:
-            why.append(f"mean {label} {float(np.mean(a)):.3g} > {float(np.mean(b)):.3g}")
-    return "; ".join(why)

@@ -216,7 +216,7 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     weights, change, said = options.optimize.weights, {}, []
     if options.texture_ratio > 0 and weights.shading_ratio == 0:
         change["shading_ratio"] = options.texture_ratio
-        said.append(f"shading ratios on, weight {options.texture_ratio:g} (texture_ratio=0 / --shading-ratio 0: off)")
+        said.append(f"shading ratios on, weight {options.texture_ratio:g} (texture_ratio=0 / --option shading_ratio=0: off)")
     if options.texture_alpha > 0 and weights.alpha == LossWeights().alpha != options.texture_alpha:
         change["alpha"] = options.texture_alpha
         said.append(f"silhouette weight {options.texture_alpha:g} (texture_alpha=0: as set)")
@@ -233,7 +233,7 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     if (options.texture_cycles > options.n_cycles == ReconstructOptions.n_cycles
             and resolved < 4 * options.face_budget):
         change["n_cycles"] = options.texture_cycles
-        said.append(f"{options.texture_cycles} cycles (texture_cycles=0 / --cycles N: as set)")
+        said.append(f"{options.texture_cycles} cycles (texture_cycles=0 / --option n_cycles=N: as set)")
     if options.texture_adaptive and options.remesh is not None and not options.remesh.adaptive:
         change["adaptive"] = True
         said.append("curvature-adaptive remeshing (texture_adaptive=False: as set)")

@@ -30,6 +30,9 @@ is coarser than asked), photo views whose error is far above the others'
 (a change of exposure or light between views?), views where photo-consistency had nothing
 to work with (no texture, no neighbour).
 
+The mesh a run returns is judged: when stages after the fit change it, `judged_as_written`
+scores it again and adds what it fails.
+
 Photo targets fitted with photo-consistency also get its residual per view
 (`consistency_residuals`: mean `1 - NCC` against a neighbour through the result's depth).
 """
@@ -40,16 +43,17 @@ import dataclasses
 from typing import NamedTuple
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.capture import Targets
 from jaxgenus.geometry import Cameras, Mesh
 from jaxgenus.optim import consistency_windows, gathered_views
+from jaxgenus.pipeline._history import History
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import plan_render, render, render_photo
 
-__all__ = ["Evidence", "Verdict", "consistency_residuals", "judge", "photo_errors", "silhouette_ious"]
+__all__ = ["Evidence", "Verdict", "consistency_residuals", "judge", "judged_as_written", "photo_errors",
+           "silhouette_ious"]
 
 
 class Verdict(NamedTuple):
@@ -174,6 +178,7 @@ class Evidence:
             by a little and still fit (`START_TOLERANCE`).
         held: the views `targets` and `photos` hold when this process holds only some
             (indices into `cams`); each process scores its own and the scores are put together.
+        start_iou: the start's per-view silhouette IoU when scored before (None: `start` is scored).
     """
 
     result: Mesh
@@ -188,6 +193,7 @@ class Evidence:
     carved_start: bool = False
     consistency: tuple | None = None
     held: np.ndarray | None = None
+    start_iou: list[float] | None = None
 
 
 #: How far (mean silhouette IoU) a result may trail its start before the verdict fails: a
@@ -230,7 +236,8 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
         return None if scores is None else gathered_views(np.asarray(scores, np.float64), e.held, len(cams)).tolist()
 
     iou, nerr = map(every, silhouette_ious(result, here, targets.alpha, sigma=sigma, normals=targets.normals))
-    start_iou = every(silhouette_ious(start, here, targets.alpha, sigma=sigma)[0])
+    start_iou = e.start_iou if e.start_iou is not None else every(silhouette_ious(start, here, targets.alpha,
+                                                                                 sigma=sigma)[0])
     fail, warn = [], []
     if not e.genus_ok:
         fail.append("the result's genus is not the requested one")
@@ -283,3 +290,16 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
                         f"or no neighbour 5-60 degrees away): views {blank[:10]}{' ...' if len(blank) > 10 else ''}; "
                         "their inside is shaped by the silhouettes and the shading alone")
     return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr, pcon)
+
+
+def judged_as_written(history: History, evidence: Evidence, options: ReconstructOptions) -> tuple[History, Verdict]:
+    """`history` with the verdict on `evidence.result`, the mesh a run writes when stages after its
+    fit changed the fitted one (`reconstruct`'s outline, depth, unseen surface, subdivision): its
+    per-view scores replace the fitted mesh's, and what it fails or warns of that the fitted mesh did
+    not is added, so `ok` holds only when both pass (the photo-consistency residual stays the fit's)."""
+    v = judge(evidence, options)
+    known = {w[:32] for w in history.warnings}
+    new = [f"the mesh written: {w}" for w in v.warnings if w[:32] not in known]
+    return dataclasses.replace(history, silhouette_iou=v.silhouette_iou, normal_error_deg=v.normal_error_deg,
+                               photo_error=v.photo_error if v.photo_error is not None else history.photo_error,
+                               ok=history.ok and v.ok, warnings=history.warnings + new), v
