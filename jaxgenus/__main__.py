@@ -119,7 +119,7 @@ def _exit_code(rec) -> int:
 
 def _options(args):
     """The options of a run: the `--preset`'s, with `--max-faces`, `--downsample`, `--devices` and
-    every `--option` held as given (`ReconstructOptions.holding`)."""
+    every `--option` held as given (`ReconstructOptions.updated`)."""
     import jaxgenus as jg
 
     base = jg.ReconstructOptions.nicolet() if args.preset.startswith("nicolet") else jg.ReconstructOptions()
@@ -129,7 +129,9 @@ def _options(args):
     for item in args.option or []:
         name, value = _setting(item)
         change[name] = value
-    return base.holding(**change)
+    if base.remesh is None and "max_faces" in change:  # no remeshing: the start's faces are the budget
+        change["initial_faces"] = min(base.initial_faces, change.pop("max_faces"))
+    return base.updated(**change)
 
 
 def _settings_list(opts) -> str:
@@ -226,10 +228,13 @@ def _region(args, images, cams, say):
 
 def _plan_line(opts, targets) -> str:
     """Cycles, steps and the face budget (with the rise photos may get, `detail_faces`)."""
+    from jaxgenus.pipeline import TEXTURE_SETTINGS
+
     more = targets == "photo" and opts.remesh is not None and opts.detail_faces > opts.face_budget
     cycles = f"{opts.n_cycles} cycles"
-    if targets == "photo" and opts.texture_cycles > opts.n_cycles == type(opts).n_cycles:
-        cycles += f" ({opts.texture_cycles} for photos of a fine texture that resolve under 4x the faces)"
+    five = TEXTURE_SETTINGS["n_cycles"]
+    if targets == "photo" and opts.fine_texture and "n_cycles" not in opts.held and opts.n_cycles < five:
+        cycles += f" ({five} for photos of a fine texture that resolve under 4x the faces)"
     return (f"{cycles} x {opts.steps_per_cycle} steps, up to {opts.face_budget} faces"
             + (f" (photos that resolve more: up to {opts.detail_faces})" if more else ""))
 

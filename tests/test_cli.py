@@ -58,30 +58,29 @@ def test_cli_settings_map_onto_the_nested_options_and_hold_as_given():
     opts, default = options(), jg.ReconstructOptions()
     assert opts.optimize.learning_rate == 0.05 and opts.remesh.adaptive and opts.optimize.render.sigma == 0.03
     assert opts.remesh.max_faces == 20000 and opts.optimize.crop == 64 and opts.downsample == 2
-    assert opts.detail_faces == 0 and opts.texture_faces == 1.0  # a budget given is held (no rise from the images)
-    assert not opts.texture_adaptive  # adaptive named: held, as for every setting named
-    assert options(max_faces=None).detail_faces == default.detail_faces
+    assert {"max_faces", "adaptive", "sigma"} <= opts.held  # held as given: no rise from the images
+    assert "max_faces" not in options(max_faces=None).held
     assert options(max_faces=1000).initial_faces == 1000  # the start fits in the budget given
     assert opts.lighting == "directional" and opts.optimize.adam_quantile == jg.OptimizeOptions().adam_quantile
     assert opts.optimize.weights.albedo_edges == 1.0 and opts.optimize.render.shading == "flat"
     edges = options(option=["albedo_edges=0.0", "consistency=0.5", "shading=smooth", "shading_ratio=2.5"])
     assert edges.optimize.weights.albedo_edges == 0.0 and edges.optimize.weights.consistency == 0.5
     assert edges.optimize.render.shading == "smooth" and edges.optimize.weights.shading_ratio == 2.5
-    assert edges.texture_ratio == 0.0  # the shading ratio named holds, also for fine textures
+    assert "shading_ratio" in edges.held  # the shading ratio named holds, also for fine textures
     assert opts.optimize.weights.stereo == 1.0 and opts.stereo_carve == default.stereo_carve
     no_stereo = options(option=["stereo=0"])
     assert no_stereo.optimize.weights.stereo == 0.0 and no_stereo.stereo_carve == 0.0
     assert options(option=["stereo=2.0"]).stereo_carve == default.stereo_carve
-    assert (opts.polish_cycles, opts.texture_polish) == (0, 2)  # fine textures only, by default
-    assert (opts.n_cycles, opts.texture_cycles) == (4, 5)  # 5 for fine textures, unless n_cycles is named
+    assert opts.n_cycles == 4 and "n_cycles" not in opts.held  # 5 for fine textures, unless n_cycles is named
     four = options(option=["n_cycles=4"])
-    assert four.texture_cycles == 0  # the default named explicitly holds too
+    assert "n_cycles" in four.held  # the default named explicitly holds too
     assert _plan_line(opts, "photo").startswith("4 cycles (5 for photos of a fine texture that resolve under 4x the faces) x 150 steps")
     assert _plan_line(opts, "normals").startswith("4 cycles x 150")
     assert _plan_line(four, "photo").startswith("4 cycles x 150")
-    assert options(option=["polish_cycles=0"]).texture_polish == 0  # none, also for textures
-    nicolet = options(preset="nicolet", option=None)
+    assert "polish_cycles" in options(option=["polish_cycles=0"]).held  # none, also for textures
+    nicolet = options(preset="nicolet", option=None, max_faces=None)
     assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000
+    assert options(preset="nicolet", option=None, max_faces=1000).initial_faces == 1000
     fine = options(preset="nicolet-fine", option=None, max_faces=None)
     assert fine.remesh is None and fine.optimize.render.sigma == 0.03 and fine.n_cycles == 5
     assert "n_cycles=4" in _settings_list(default) and "sigma=" in _settings_list(default)

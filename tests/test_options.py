@@ -52,11 +52,12 @@ def test_photos_that_resolve_more_detail_get_a_larger_face_budget():
     o = jg.ReconstructOptions()
     budget, resolved = detail_budget(o, "photo", 24, hull, pixel_for(100_000))
     assert budget == o.detail_faces == 40000 and abs(resolved - sphere.area / face(pixel_for(100_000))) <= 1
-    assert detail_budget(o.updated(max_faces=5000), "photo", 24, hull, pixel_for(25_500))[0] == 25000  # in 1000s
+    assert detail_budget(o.replaced(max_faces=5000), "photo", 24, hull, pixel_for(25_500))[0] == 25000  # in 1000s
+    assert detail_budget(o.updated(max_faces=5000), "photo", 24, hull, pixel_for(25_500))[0] == 5000  # held as given
     # under 4 x max_faces (edges under 8 px at the budget): the photos' finest level is fitted already
     assert detail_budget(o, "photo", 24, hull, pixel_for(40_000))[0] == 12000
     assert detail_budget(o, "photo", 24, hull, pixel_for(49_000))[0] == 40000
-    held = [o.updated(detail_faces=0), o.updated(consistency=0.0), o.updated(max_faces=50000)]
+    held = [o.updated(detail_faces=0), o.updated(consistency=0.0), o.replaced(max_faces=50000)]
     assert [detail_budget(h, "photo", 24, hull, pixel_for(100_000))[0] for h in held] == [12000, 12000, 50000]
     assert detail_budget(o, "silhouette", 24, hull, pixel_for(100_000)) == (12000, 0)
     assert detail_budget(o, "normals", 24, hull, pixel_for(100_000)) == (12000, 0)
@@ -67,8 +68,10 @@ def test_photos_that_resolve_more_detail_get_a_larger_face_budget():
         jg.ReconstructOptions(detail_faces=-1)
     with pytest.raises(ValueError, match="polish_cycles"):
         jg.ReconstructOptions(polish_cycles=-1)
-    with pytest.raises(ValueError, match="polish_average"):
-        jg.ReconstructOptions(polish_average=1.0)
+    with pytest.raises(ValueError, match="held"):
+        jg.ReconstructOptions(held=frozenset({"no_such_setting"}))
+    with pytest.raises(ValueError, match="fine_texture"):
+        jg.ReconstructOptions(fine_texture=1)
 
 
 def test_a_photo_capture_that_resolves_more_gets_the_budget_from_its_visual_hull():
@@ -79,7 +82,7 @@ def test_a_photo_capture_that_resolves_more_gets_the_budget_from_its_visual_hull
     gt = jg.builtin_scene("torus")
     cams = jg.sphere_cameras(12, radius=3.0, fov_deg=40.0, resolution=256)
     photos = raycast_lambert(cams, gt, light_direction=(0.3, 0.5, 0.8), albedo=(0.6, 0.5, 0.4))
-    options = jg.ReconstructOptions(initial_faces=500).updated(max_faces=2000, detail_faces=5000)
+    options = jg.ReconstructOptions(initial_faces=500).replaced(max_faces=2000, detail_faces=5000)  # max_faces not held
     said = []
     setup = prepare(photos, cams, 1, "photo", options, said.append)
     assert 2000 < setup.options.face_budget <= 5000 and setup.options.detail_faces == 5000

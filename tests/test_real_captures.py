@@ -38,7 +38,7 @@ FRAMES = {
 }
 # a short schedule and a smaller face budget (about a minute a run on two CPU cores; the default
 # 12000 faces ran 2-3x slower for the same volume IoU, about 0.97); the defaults otherwise
-OPTIONS = jg.ReconstructOptions().holding(n_cycles=3, steps_per_cycle=50, max_faces=5000)  # what CLI_SCHEDULE gives
+OPTIONS = jg.ReconstructOptions().updated(n_cycles=3, steps_per_cycle=50, max_faces=5000)  # what CLI_SCHEDULE gives
 CLI_SCHEDULE = ["--option", "n_cycles=3", "steps_per_cycle=50", "--max-faces", "5000"]
 MISLABELLED = [0, 3, 6, 9, 12, 15]  # views whose cameras are rotated among themselves in test 3
 

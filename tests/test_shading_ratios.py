@@ -122,37 +122,22 @@ def test_the_objective_counts_pairs_near_albedo_edges_only(scene):
 
 def test_fine_textures_turn_the_term_on(scene):
     """`reconstruct` gives photos whose albedo edges cover FINE_TEXTURE of the masks the term
-    (`ReconstructOptions.texture_ratio`); a constant albedo's few edges (inner contours) do not."""
+    (`ReconstructOptions.fine_texture`); a constant albedo's few edges (inner contours) do not."""
     from jaxgenus.pipeline._setup import FINE_TEXTURE, texture_share
 
     _, photos, _ = scene
     assert texture_share(photos["cells"]) >= FINE_TEXTURE  # 11-px cells: 34 % of the pixels on a jump
     assert texture_share(photos["constant"]) < 0.1 * FINE_TEXTURE
-    with pytest.raises(ValueError, match="texture_ratio"):
-        jg.ReconstructOptions(texture_ratio=-1.0)
-    with pytest.raises(ValueError, match="texture_alpha"):
-        jg.ReconstructOptions(texture_alpha=-1.0)
-    with pytest.raises(ValueError, match="texture_blur"):
-        jg.ReconstructOptions(texture_blur=1.5)
-    with pytest.raises(ValueError, match="texture_photo"):
-        jg.ReconstructOptions(texture_photo=-1.0)
-    with pytest.raises(ValueError, match="texture_polish"):
-        jg.ReconstructOptions(texture_polish=-1)
-    with pytest.raises(ValueError, match="texture_cycles"):
-        jg.ReconstructOptions(texture_cycles=-1)
-    with pytest.raises(ValueError, match="texture_adaptive"):
-        jg.ReconstructOptions(texture_adaptive=1)
 
 
 def test_fine_textures_weigh_the_silhouettes_more(scene):
-    """For photos of a fine texture the fit raises the silhouette weight to `texture_alpha`, lowers the
-    photometric weight to `texture_photo`, turns shading ratios on, compares them unblurred
-    (`texture_blur`), closes with `texture_polish` polish cycles, runs `texture_cycles` cycles and
-    remeshes curvature-adaptively (`texture_adaptive`), each only where the caller left it
-    at its default; smooth photos keep all, and so do cells the finest level fitted blurs (the share is
-    measured on the images the fit sees)."""
+    """For photos of a fine texture the fit takes `TEXTURE_SETTINGS`: it raises the silhouette weight,
+    lowers the photometric weight, turns shading ratios on, compares them unblurred, closes with two
+    polish cycles, runs five cycles and remeshes curvature-adaptively, each only where the caller did
+    not name the setting (a default named holds too); smooth photos keep all, and so do cells the
+    finest level fitted blurs (the share is measured on the images the fit sees)."""
     from jaxgenus.optim import pyramid_level
-    from jaxgenus.pipeline._setup import FINE_TEXTURE, fine_texture, texture_share
+    from jaxgenus.pipeline._setup import FINE_TEXTURE, TEXTURE_SETTINGS, fine_texture, texture_share
 
     cams, photos, _ = scene
     base, polish, adaptive, cycles = jg.ReconstructOptions(), [], [], []
@@ -168,23 +153,26 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
         return w.alpha, w.shading_ratio, w.consistency_blur, w.photo, lines
 
     alpha, ratio, blur, photo, said = weights("cells", base)
-    assert (alpha, ratio, blur, photo) == (base.texture_alpha, base.texture_ratio, base.texture_blur,
-                                           base.texture_photo) == (4.0, 6.0, 0.0, 1.0)
-    assert len(said) == 1 and all(s in said[0] for s in ("silhouette weight 4", "shading ratios on", "blur 0",
-                                                         "photometric weight 1", "2 closing polish",
-                                                         "curvature-adaptive", "5 cycles")), said
-    assert polish[-1] == base.texture_polish == 2 and base.polish_cycles == 0
-    assert adaptive[-1] and base.texture_adaptive and not base.remesh.adaptive
-    assert cycles[-1] == base.texture_cycles == 5 and base.n_cycles == 4
+    t = TEXTURE_SETTINGS
+    assert (alpha, ratio, blur, photo) == (t["alpha"], t["shading_ratio"], t["consistency_blur"], t["photo"]) == (4.0, 6.0, 0.0, 1.0)
+    assert len(said) == 1 and all(s in said[0] for s in ("alpha=4.0", "shading_ratio=6.0", "consistency_blur=0.0",
+                                                         "photo=1.0", "polish_cycles=2",
+                                                         "adaptive=True", "n_cycles=5")), said
+    assert polish[-1] == t["polish_cycles"] == 2 and base.polish_cycles == 0
+    assert adaptive[-1] and not base.remesh.adaptive
+    assert cycles[-1] == t["n_cycles"] == 5 and base.n_cycles == 4
     # photos that resolve 4x the budget's faces or more (a DTU-class capture) keep the cycles as set
     detailed = fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget)
-    assert detailed.n_cycles == 4 and detailed.polish_cycles == base.texture_polish
+    assert detailed.n_cycles == 4 and detailed.polish_cycles == t["polish_cycles"]
     assert fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget - 1).n_cycles == 5
     kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1, adaptive=True)
     kept = kept.updated(n_cycles=3)
     assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1 and cycles[-1] == 3  # the caller's
-    off = base.updated(texture_alpha=0.0, texture_ratio=0.0, texture_blur=1.0, texture_photo=0.0, texture_polish=0,
-                       texture_adaptive=False, texture_cycles=0)
+    defaults = base.updated(alpha=1.0, shading_ratio=0.0, consistency_blur=1.0, photo=6.0, polish_cycles=0,
+                            adaptive=False, n_cycles=4)  # the defaults, named: held
+    assert weights("cells", defaults) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
+    assert cycles[-1] == 4
+    off = base.updated(fine_texture=False)
     assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
     assert cycles[-1] == 4
     assert weights("cells", base.updated(consistency=0.0))[2] == 1.0 and polish[-1] == 0  # no term: no polish
@@ -199,21 +187,19 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
 
 def test_fine_textures_get_the_face_budget_their_photos_resolve(scene):
     """Photos of a fine texture that resolve fewer faces than `max_faces` (edges of 4 px on the visual
-    hull) fit with that many, to no less than `texture_faces` of the budget (said); smooth photos,
-    `texture_faces=1` and the caller's options keep the budget."""
+    hull) fit with that many, to no less than `TEXTURE_FACES` of the budget (said); smooth photos,
+    and a budget given by name, keep it."""
     from jaxgenus.pipeline._setup import prepare
 
     cams, photos, _ = scene
-    base, said = jg.ReconstructOptions(initial_faces=500).updated(max_faces=30000), []
+    base, said = jg.ReconstructOptions(initial_faces=500).replaced(max_faces=30000), []
     fitted = prepare(photos["cells"], cams, 1, "photo", base, said.append)
     assert 0 < fitted.resolved < 30000, fitted.resolved
     budget = fitted.options.face_budget
     assert budget == max(20000, fitted.resolved // 1000 * 1000) < 30000 and base.face_budget == 30000
     assert any(line.startswith(f"face budget: {budget} faces (photos of a fine texture") for line in said), said
     assert prepare(photos["constant"], cams, 1, "photo", base, print).options.face_budget == 30000
-    assert prepare(photos["cells"], cams, 1, "photo", base.updated(texture_faces=1.0), print).options.face_budget == 30000
-    with pytest.raises(ValueError, match="texture_faces"):
-        jg.ReconstructOptions(texture_faces=1.5)
+    assert prepare(photos["cells"], cams, 1, "photo", base.updated(max_faces=30000), print).options.face_budget == 30000
 
 
 def test_stereo_carves_only_photos_of_a_fine_texture(scene):
@@ -232,24 +218,18 @@ def test_stereo_carves_only_photos_of_a_fine_texture(scene):
 
 
 def test_the_polish_smooths_by_its_own_lambda():
-    """The polish cycles run with `polish_lambda` (less smoothing than the cycles' `lambda_`, which
-    keep theirs) and the cycles' silhouette weight unless `polish_alpha` sets one; negative values
-    are refused by name."""
+    """The polish cycles run with `POLISH_LAMBDA` (less smoothing than the cycles' `lambda_`, which
+    keep theirs), `POLISH_AVERAGE` and the cycles' silhouette weight."""
     from types import SimpleNamespace
 
-    from jaxgenus.pipeline._cycles import _polish_options
+    from jaxgenus.pipeline._cycles import POLISH_AVERAGE, POLISH_LAMBDA, _polish_options
 
     level = SimpleNamespace(valid=None, crop=0)
     base = jg.ReconstructOptions()
-    assert base.optimize.lambda_ == 19.0 and base.polish_lambda == 5.0
+    assert base.optimize.lambda_ == 19.0 and POLISH_LAMBDA == 5.0 and POLISH_AVERAGE == 0.99
     polished = _polish_options(base.updated(alpha=4.0), level, None)
     assert polished.lambda_ == 5.0 and polished.weights.alpha == 4.0  # the cycles' silhouette weight
-    opts = base.updated(polish_lambda=12.0, lambda_=30.0, polish_alpha=2.5)
+    opts = base.updated(lambda_=30.0)
     polished = _polish_options(opts, level, None)
-    assert polished.lambda_ == 12.0 and opts.optimize.lambda_ == 30.0
-    assert polished.weights.alpha == 2.5 and polished.weights.photo == 0.0 and polished.average == 0.99
-    assert _polish_options(base.updated(polish_average=0.9), level, None).average == 0.9
-    with pytest.raises(ValueError, match="polish_lambda"):
-        jg.ReconstructOptions(polish_lambda=-1.0)
-    with pytest.raises(ValueError, match="polish_alpha"):
-        jg.ReconstructOptions(polish_alpha=-1.0)
+    assert polished.lambda_ == 5.0 and opts.optimize.lambda_ == 30.0
+    assert polished.weights.photo == 0.0 and polished.average == 0.99

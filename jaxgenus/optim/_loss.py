@@ -53,7 +53,7 @@ class LossWeights:
     Attributes:
         alpha, normal: the image terms (each a mean over the pixels, so O(1) and
             resolution-independent). `reconstruct` sets `alpha` to 4 for photos of a fine texture
-            (`ReconstructOptions.texture_alpha`).
+            (`ReconstructOptions.fine_texture`).
         bilaplacian: `||L x||^2`, a sum over the vertices (default 0: the large-steps
             parametrization already smooths; e.g. `1e-2 / n_vertices` penalizes curvature).
         inversion: triangle inversion (zero unless a triangle flips; one face folded flat
@@ -85,13 +85,13 @@ class LossWeights:
         shading_ratio: photo targets: `shading_ratio_cost`, the log ratios of nearby pixels of the
             photo against those of the smoothly shaded irradiance at the mesh's normals (albedo-free;
             one more render a step), over the pairs near an albedo edge (`RATIO_BAND`). 0 here;
-            `reconstruct` sets 6 for photos of a fine texture (`ReconstructOptions.texture_ratio`);
+            `reconstruct` sets 6 for photos of a fine texture (`ReconstructOptions.fine_texture`);
             on smooth albedos it costs (docs/results.md, "Shading ratios").
         consistency_blur: not a weight of a term: how much of a binomial blur (sigma 1 px, each
             photo in its own pixels) the `consistency` term compares, 1 all, 0 none. The blur
             smooths the term on smooth shading, but it biases NCC off the true surface where a
             fine texture is foreshortened differently in two views; `reconstruct` sets 0 for
-            photos of a fine texture (`ReconstructOptions.texture_blur`; docs/results.md, "No blur
+            photos of a fine texture (`ReconstructOptions.fine_texture`; docs/results.md, "No blur
             for a fine texture").
         consistency_colour: not a weight of a term: 1 compares R, G and B in the `consistency` term
             (one NCC per window from the three channels' covariances and variances), 0 (default) the

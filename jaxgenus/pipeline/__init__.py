@@ -21,6 +21,7 @@ from jaxgenus.pipeline._history import (
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._reconstruct import genus_estimate, reconstruct
 from jaxgenus.pipeline._scenes import SCENES, builtin_scene, render_targets
+from jaxgenus.pipeline._setup import TEXTURE_SETTINGS
 
 __all__ = [
     "CycleRecord",
@@ -33,6 +34,7 @@ __all__ = [
     "ReconstructOptions",
     "Reconstruction",
     "SCENES",
+    "TEXTURE_SETTINGS",
     "builtin_scene",
     "genus_estimate",
     "handle_candidates",

@@ -48,7 +48,7 @@ from jaxgenus.pipeline._history import CycleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import RasterPlan, plan_render, render
 
-__all__ = ["CycleOutput", "CycleRun", "Level", "cycle", "optimizer_block", "polish_count", "run_one_jit", "run_per_cycle",
+__all__ = ["POLISH_AVERAGE", "POLISH_LAMBDA", "CycleOutput", "CycleRun", "Level", "cycle", "optimizer_block", "polish_count", "run_one_jit", "run_per_cycle",
            "run_polish"]
 
 _WRAP = 1 << 31  # the host clock is read in microseconds modulo 2^31 (int32): it wraps every 36 min
@@ -366,16 +366,22 @@ def polish_count(options: ReconstructOptions, level: Level) -> int:
     return options.polish_cycles if level.neighbours is not None and options.optimize.weights.consistency > 0 else 0
 
 
+#: The polish's large-steps `lambda_`: less smoothing than the cycles' (19), so photo-consistency can
+#: sharpen creases (docs/results.md, "The closing polish").
+POLISH_LAMBDA = 5.0
+#: The polish's iterate averaging (`OptimizeOptions.average`: about the last 100 steps of each cycle).
+POLISH_AVERAGE = 0.99
+
+
 def _polish_options(options: ReconstructOptions, level: Level, plan) -> OptimizeOptions:
-    """The polish's optimizer settings: the silhouettes (at `options.polish_alpha`, None: the cycles'
-    weight) and colour photo-consistency, unblurred, only (no shading, albedo, stereo or ratio terms),
-    iterates averaged (`options.polish_average`), smoothing `options.polish_lambda`."""
-    alpha = options.optimize.weights.alpha if options.polish_alpha is None else options.polish_alpha
-    weights = dataclasses.replace(options.optimize.weights, alpha=alpha, photo=0.0, albedo_smoothness=0.0, stereo=0.0,
+    """The polish's optimizer settings: the silhouettes (at the cycles' weight) and colour
+    photo-consistency, unblurred, only (no shading, albedo, stereo or ratio terms), iterates
+    averaged (`POLISH_AVERAGE`), smoothing `POLISH_LAMBDA`."""
+    weights = dataclasses.replace(options.optimize.weights, photo=0.0, albedo_smoothness=0.0, stereo=0.0,
                                   shading_ratio=0.0, carve=0.0, containment=0.0, consistency_blur=0.0,
                                   consistency_colour=1.0)
     return dataclasses.replace(_optimize_options(options, plan, level), weights=weights,
-                               average=options.polish_average, lambda_=options.polish_lambda)
+                               average=POLISH_AVERAGE, lambda_=POLISH_LAMBDA)
 
 
 def run_polish(run: CycleRun, level: Level, options: ReconstructOptions, t0: float,

@@ -134,7 +134,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
         run = run_per_cycle(state, levels, lengths, options, t0, user_callback, remaining)
     if polish:
         say(f"polish: {polish} cycles of {options.steps_per_cycle} steps on the silhouettes and colour "
-            "photo-consistency only (texture_polish=0 / --option polish_cycles=0: none)")
+            "photo-consistency only (polish_cycles=0 given by name: none)")
         run = run_polish(run, levels[-1], options, t0, user_callback, remaining)
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)

@@ -18,22 +18,6 @@ from jaxgenus.rendering import RenderSettings
 __all__ = ["ReconstructOptions"]
 
 
-#: A setting given by name (`ReconstructOptions.holding`) holds: these automatic choices, which would
-#: change it during a run, are then off (the fine-texture rules of `pipeline._setup.fine_texture`,
-#: the photos' detail budget; `stereo=0` also turns off the stereo carving of the start).
-HELD_BY = {
-    "n_cycles": {"texture_cycles": 0},
-    "shading_ratio": {"texture_ratio": 0.0},
-    "polish_cycles": {"texture_polish": 0},
-    "alpha": {"texture_alpha": 0.0},
-    "photo": {"texture_photo": 0.0},
-    "consistency_blur": {"texture_blur": LossWeights().consistency_blur},
-    "adaptive": {"texture_adaptive": False},
-    "max_faces": {"detail_faces": 0, "texture_faces": 1.0},
-    "stereo": {"stereo_carve": 0.0},
-}
-
-
 def _positive_int(name, v, minimum=1):
     if isinstance(v, bool) or not isinstance(v, int) or v < minimum:
         raise ValueError(f"options.{name} must be an int >= {minimum}, got {v!r}")
@@ -135,41 +119,21 @@ class ReconstructOptions:
             `max_faces` or more (faces with edges of 4 px on the visual hull), the face budget
             rises towards that, to at most this many (time and memory grow with it). 0, or any
             value not above `max_faces`, holds the budget at `max_faces`.
-        texture_ratio: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`) cover
+        fine_texture: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`) cover
             `FINE_TEXTURE` (30 %) of the masks or more in the finest images a fit sees (a texture
-            finer than the mesh's albedo holds) are fitted with `LossWeights.shading_ratio` at this
-            weight when it is 0. 0: never.
-        texture_alpha: the silhouette weight (`LossWeights.alpha`) for photos of such a fine texture,
-            when it is at its default (1): where shading cannot explain the photos, the outline the
-            masks give weighs more. 0: never.
-        texture_blur: `LossWeights.consistency_blur` for photos of such a fine texture, when it is at
-            its default (1): compared unblurred (0), as a blur in each photo's own pixels biases NCC
-            where two views foreshorten the texture differently. 1: blurred as other photos.
-        texture_photo: the photometric weight (`LossWeights.photo`) for photos of such a fine texture,
-            when it is at its default (6): a per-vertex albedo cannot hold the texture, and
-            photo-consistency does better with less shading. 0: never.
-        stereo_carve: photo targets on one device: the visual hull loses the space that plane-sweep
-            stereo (`jaxgenus.capture.stereo_depths`) shows to be empty, in front of depths two views
-            agree on, by `stereo_carve` grid cells or more, so the start has the concavities no
-            silhouette shows. Only for photos of a fine texture at the stereo size. 0: off.
+            finer than the mesh's albedo holds) get `pipeline._setup.TEXTURE_SETTINGS` (shading ratios
+            on, the silhouettes weighed more, the photometric term less, photo-consistency unblurred,
+            two polish cycles, five cycles, adaptive remeshing) for each of those settings not in
+            `held`, and a face budget lowered to what they resolve unless `max_faces` is held.
+            False: never.
+        held: the names of the settings given by name (`updated`, the CLI's `--option`):
+            no automatic choice of the run changes them (the fine-texture settings, the photos'
+            detail budget, the thin-structure switch to `fine()`).
         polish_cycles: photo targets fitted with photo-consistency (one device): after the cycles,
             this many more cycles at the finest level, without remeshing, on the silhouettes
-            (`polish_alpha`) and colour photo-consistency only, with fresh moments and iterate
-            averaging (`polish_average`). 0 (default): none, but see `texture_polish`.
-        texture_polish: `polish_cycles` for photos of such a fine texture, when it is 0. 0: never.
-        texture_adaptive: photos of such a fine texture are remeshed curvature-adaptively
-            (`RemeshOptions.adaptive`) when it is off. False: as set.
-        texture_faces: photos of such a fine texture (at full size) that resolve fewer faces than
-            `max_faces` get a budget lowered to that count, to no less than this share of
-            `max_faces`. 1: `max_faces` as set.
-        texture_cycles: `n_cycles` for photos of such a fine texture, when it is at its default (4),
-            where the photos resolve fewer than 4 x the faces of the budget. 0, or any value not above
-            `n_cycles`: as set.
-        polish_lambda: the large-steps `lambda_` of the polish cycles (less smoothing than the
-            cycles' `optimize.lambda_`, so photo-consistency can sharpen creases).
-        polish_alpha: the polish's silhouette weight; None: the cycles'.
-        polish_average: the polish's iterate averaging (`OptimizeOptions.average`: about the last
-            `1 / (1 - polish_average)` steps of each polish cycle).
+            and colour photo-consistency only, with fresh moments, less smoothing and iterate
+            averaging (`pipeline._cycles.POLISH_LAMBDA`, `POLISH_AVERAGE`). 0 (default): none, but
+            see `fine_texture`.
         subdivide: a result whose median edge is longer than `SUBDIVIDE_EDGE_PX` (2) pixels at the
             images' own size goes through one `phong_subdivision` (4x the faces, the albedo carried):
             flat faces are chords that cut under curved parts by about k h^2 / 8, and the new
@@ -219,30 +183,20 @@ class ReconstructOptions:
     refits: int | None = None
     refit_carve: float = 1.0
     detail_faces: int = 40000
-    texture_ratio: float = 6.0
-    texture_alpha: float = 4.0
-    texture_blur: float = 0.0
-    texture_photo: float = 1.0
     stereo_carve: float = 2.0
     polish_cycles: int = 0
-    texture_polish: int = 2
-    texture_adaptive: bool = True
-    texture_faces: float = 2.0 / 3.0
-    texture_cycles: int = 5
-    polish_lambda: float = 5.0
-    polish_alpha: float | None = None
-    polish_average: float = 0.99
     subdivide: bool = True
     fill_unseen: bool = True
     fit_outline: bool = True
     fit_photo_depth: bool = True
     depth_edge_px: float = 8.0
+    fine_texture: bool = True
+    held: frozenset = frozenset()
 
     def __post_init__(self):
         for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
             _positive_int(name, getattr(self, name))
-        for name in ("coarse_resolution", "native_cycles", "detail_faces", "polish_cycles",
-                     "texture_polish", "texture_cycles"):
+        for name in ("coarse_resolution", "native_cycles", "detail_faces", "polish_cycles"):
             _positive_int(name, getattr(self, name), 0)
         if self.refits is not None:
             _positive_int("refits", self.refits, 0)
@@ -251,19 +205,16 @@ class ReconstructOptions:
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
-        for name in ("refit_carve", "fine_below", "texture_ratio", "texture_alpha", "texture_photo", "stereo_carve",
-                     "polish_lambda", "depth_edge_px"):
+        for name in ("refit_carve", "fine_below", "stereo_carve", "depth_edge_px"):
             _number(name, getattr(self, name), 0.0, math.inf)
-        if self.polish_alpha is not None:
-            _number("polish_alpha", self.polish_alpha, 0.0, math.inf)
-        _number("polish_average", self.polish_average, 0.0, 0.999)
-        for name in ("min_view_iou", "outlier_gap", "max_photo_error", "texture_blur", "texture_faces"):
+        for name in ("min_view_iou", "outlier_gap", "max_photo_error"):
             _number(name, getattr(self, name), 0.0, 1.0)
-        for name in ("subdivide", "fill_unseen", "fit_outline", "fit_photo_depth"):
+        for name in ("subdivide", "fill_unseen", "fit_outline", "fit_photo_depth", "fine_texture"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"options.{name} must be True or False, got {getattr(self, name)!r}")
-        if not isinstance(self.texture_adaptive, bool):
-            raise ValueError(f"options.texture_adaptive must be True or False, got {self.texture_adaptive!r}")
+        unknown = sorted(n for n in self.held if not isinstance(n, str) or n not in _setting_names())
+        if not isinstance(self.held, frozenset) or unknown:
+            raise ValueError(f"options.held must be a frozenset of setting names, got {self.held!r}")
         _choice("hidden_handles", self.hidden_handles, ("images", "drill"))
         _choice("lighting", self.lighting, ("sh", "directional"))
         _choice("start", self.start, ("auto", "primitive", "sphere"))
@@ -293,7 +244,25 @@ class ReconstructOptions:
         """A copy with settings changed by their own names, wherever they live: a field of
         this class, of `optimize`, of its `weights` (`LossWeights`) or `render`
         (`RenderSettings`), or of `remesh` (no name repeats across them), e.g.
-        `ReconstructOptions().updated(learning_rate=0.05, sigma=0.03, adaptive=True, max_faces=30000)`."""
+        `ReconstructOptions().updated(learning_rate=0.05, sigma=0.03, adaptive=True, max_faces=30000)`.
+
+        Every setting named is held as given (added to `held`): no automatic choice of the run
+        changes it, also when it is the default (`updated(n_cycles=4)` stays 4 for photos of a
+        fine texture; `max_faces` is not raised for detailed photos). `stereo=0` also turns off
+        the stereo carving of the start, and a `max_faces` under `initial_faces` lowers that.
+        The command line's `--option NAME=VALUE` and `--max-faces` are this."""
+        change = dict(settings)
+        if not settings.get("stereo", 1) and "stereo_carve" not in settings:
+            change["stereo_carve"] = 0.0
+        if isinstance(settings.get("max_faces"), int) and "initial_faces" not in settings:
+            change["initial_faces"] = min(self.initial_faces, settings["max_faces"])
+        if "held" not in settings:
+            change["held"] = self.held | frozenset(settings)
+        return self.replaced(**change)
+
+    def replaced(self, **settings) -> "ReconstructOptions":
+        """`updated` without holding what it names: the run's own choices (presets, the
+        fine-texture settings, the detail budget) go through this."""
         own = {f.name for f in dataclasses.fields(self)}
         parts = {"optimize": OptimizeOptions, "weights": LossWeights, "render": RenderSettings, "remesh": RemeshOptions}
         changes = {"": {}, **{k: {} for k in parts}}
@@ -319,27 +288,11 @@ class ReconstructOptions:
             out["remesh"] = dataclasses.replace(base, **changes["remesh"])
         return dataclasses.replace(self, **out)
 
-    def holding(self, **settings) -> "ReconstructOptions":
-        """`updated(**settings)` with each setting named held as given: the automatic choices that
-        would change it later in a run are off (`HELD_BY`: `n_cycles=4` stays 4 for photos of a fine
-        texture, `max_faces` is not raised for detailed photos, `stereo=0` also skips the stereo
-        carving of the start). What the command line's `--option` and `--max-faces` apply."""
-        change = dict(settings)
-        for name, value in settings.items():
-            for rule, off in HELD_BY.get(name, {}).items():
-                if rule not in settings and (name != "stereo" or not value):
-                    change[rule] = off
-        if isinstance(settings.get("max_faces"), int) and "initial_faces" not in settings:
-            change["initial_faces"] = min(self.initial_faces, int(settings["max_faces"]))
-        if self.remesh is None:  # no remeshing (nicolet()): the start's faces are the budget
-            change.pop("max_faces", None)
-        return self.updated(**change)
-
     @classmethod
     def nicolet(cls, **settings) -> "ReconstructOptions":
         """Nicolet et al. 2021: sphere start, no remeshing, same renderer, their uniform Adam (the max),
         the result as fitted (no `subdivide`)."""
-        return cls(start="sphere", remesh=None, subdivide=False).updated(adam_quantile=1.0, **settings)
+        return cls().replaced(start="sphere", remesh=None, subdivide=False, adam_quantile=1.0).updated(**settings)
 
     def fine(self) -> "ReconstructOptions":
         """A copy set up for thin structures a few pixels wide (e.g. sheets 2 px thick).
@@ -351,17 +304,18 @@ class ReconstructOptions:
         averaging (`average` 0.95: the step noise of the sampled views limits sheets under
         2 px thick). About twice the time of the defaults; on thick shapes no better
         (docs/reconstruction.md). `ReconstructOptions.nicolet().fine()` is the baseline at
-        the same renderer, schedule and averaging.
+        the same renderer, schedule and averaging. Settings in `held` keep their values.
         """
         more = {} if self.remesh is None else {"max_faces": max(self.face_budget, 20000)}
-        return self.updated(sigma=0.03, lr_decay=0.9, average=0.95, n_cycles=5, initial_edge_length=1.4,
-                            final_edge_length=1.0, **more)
+        change = dict(sigma=0.03, lr_decay=0.9, average=0.95, n_cycles=5, initial_edge_length=1.4,
+                      final_edge_length=1.0, **more)
+        return self.replaced(**{k: v for k, v in change.items() if k not in self.held})
 
     def for_refit(self, targets: str) -> "ReconstructOptions":
         """The options of a refit of `targets`: carving (`refit_carve`) switched on for normal maps
         when the weights do not set it already."""
         if targets == "normals" and self.refit_carve and not self.optimize.weights.carve:
-            return self.updated(carve=self.refit_carve)
+            return self.replaced(carve=self.refit_carve)
         return self
 
     def refit_count(self, height: int, width: int, targets: str = "normals") -> int:
@@ -383,3 +337,56 @@ class ReconstructOptions:
             return [self.final_edge_length]
         r = (self.final_edge_length / self.initial_edge_length) ** (1.0 / (n - 1))
         return [self.initial_edge_length * r**i for i in range(n)]
+
+
+def _nested_changes(part, default) -> set[str]:
+    """The names of the fields of settings `part` (and of its nested settings) that differ from `default`'s."""
+    if part is None or default is None or type(part) is not type(default):
+        return set()
+    names = set()
+    for f in dataclasses.fields(part):
+        value, base = getattr(part, f.name), getattr(default, f.name)
+        if dataclasses.is_dataclass(value):
+            names |= _nested_changes(value, base if base is not None else type(value)())
+        elif not _same(value, base):
+            names.add(f.name)
+    return names
+
+
+def _same(a, b) -> bool:
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):  # arrays compare element-wise
+        return False
+
+
+_generated_init = ReconstructOptions.__init__
+
+
+def _init_holding_what_is_given(self, *args, **kwargs):
+    """`ReconstructOptions(...)`: the settings passed are held (`held`), as with `updated`; nested
+    settings passed (`optimize=OptimizeOptions(...)`) hold the fields they set. `dataclasses.replace`
+    passes `held` itself and holds nothing more."""
+    _generated_init(self, *args, **kwargs)
+    if "held" in kwargs:
+        return
+    given = {f.name for f in dataclasses.fields(self)[: len(args)]} | set(kwargs)
+    names = set()
+    for name in given:
+        value = getattr(self, name)
+        if dataclasses.is_dataclass(value):
+            names |= _nested_changes(value, _DEFAULTS[name] if _DEFAULTS[name] is not None else type(value)())
+        else:
+            names.add(name)
+    if names:
+        object.__setattr__(self, "held", self.held | frozenset(names))
+
+
+_DEFAULTS = {f.name: f.default for f in dataclasses.fields(ReconstructOptions)}
+ReconstructOptions.__init__ = _init_holding_what_is_given
+
+
+def _setting_names() -> frozenset:
+    """Every name `ReconstructOptions.updated` takes."""
+    classes = (ReconstructOptions, OptimizeOptions, LossWeights, RenderSettings, RemeshOptions)
+    return frozenset(f.name for cls in classes for f in dataclasses.fields(cls))

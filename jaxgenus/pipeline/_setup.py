@@ -23,13 +23,13 @@ from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupanc
                               cut_views, hull_occupancy, hull_thickness, pixel_footprint, region_misses, scene_frame,
                               stereo_depths, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
-from jaxgenus.optim import (LossWeights, albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
+from jaxgenus.optim import (albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
                             view_neighbours, views_layout)
 from jaxgenus.pipeline._history import GenusEstimate
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
 
-__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "STEREO_SIZE", "Setup", "detail_budget", "downsampled", "fine_texture",
+__all__ = ["DETAIL_EDGE", "FINE_TEXTURE", "STEREO_SIZE", "TEXTURE_FACES", "TEXTURE_SETTINGS", "Setup", "detail_budget", "downsampled", "fine_texture",
            "hull_factor", "prepare", "texture_share"]
 
 #: Photo-consistency places the surface to a fraction of a pixel where the photos carry texture: the
@@ -152,6 +152,7 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
     budget follows the images")."""
     budget = options.face_budget
     if (kind != "photo" or options.remesh is None or options.detail_faces <= budget or hull is None
+            or "max_faces" in options.held
             or options.optimize.weights.consistency <= 0 or views_layout(n_views, options.devices)[0] is not None):
         return budget, 0
     v, f = hull.to_numpy()
@@ -167,25 +168,39 @@ def _detailed(options: ReconstructOptions, tg: Targets, n_views: int, hulls: Hul
               say) -> tuple[ReconstructOptions, int]:
     """`(options, resolved)`: `options` with the face budget of `detail_budget` (said when raised), or,
     for photos of a fine texture (`FINE_TEXTURE` at full size) that resolve fewer faces than
-    `max_faces`, lowered towards that count, to no less than `texture_faces` of it (said)."""
+    `max_faces`, lowered towards that count, to no less than `TEXTURE_FACES` of it (said)."""
     budget, resolved = detail_budget(options, tg.kind, n_views, hulls.get(options.hull_resolutions[0], 0)[0], pixel)
-    if 0 < resolved < budget and options.texture_faces < 1 and texture_share(tg.fit) >= FINE_TEXTURE:
-        lower = max(options.initial_faces, int(round(options.texture_faces * budget)) // 1000 * 1000, resolved // 1000 * 1000)
+    if (0 < resolved < budget and options.fine_texture and "max_faces" not in options.held
+            and texture_share(tg.fit) >= FINE_TEXTURE):
+        lower = max(options.initial_faces, int(round(TEXTURE_FACES * budget)) // 1000 * 1000, resolved // 1000 * 1000)
         if lower < budget:
             say(f"face budget: {lower} faces (photos of a fine texture that resolve about {resolved} at "
-                f"{DETAIL_EDGE:g} px edges; max_faces {budget}; texture_faces=1: as set)")
-            return options.updated(max_faces=lower), resolved
+                f"{DETAIL_EDGE:g} px edges; max_faces {budget}, held when given by name)")
+            return options.replaced(max_faces=lower), resolved
     if budget <= options.face_budget:
         return options, resolved
     say(f"face budget: {budget} faces (the photos resolve about {resolved} at {DETAIL_EDGE:g} px edges; "
-        f"max_faces {options.face_budget}, at most detail_faces {options.detail_faces}: set detail_faces=0 "
-        "or --max-faces to hold it)")
-    return options.updated(max_faces=budget), resolved
+        f"max_faces {options.face_budget}, at most detail_faces {options.detail_faces}; max_faces given by name "
+        "holds)")
+    return options.replaced(max_faces=budget), resolved
 
 
-#: Photos whose albedo edges cover this share of their masks or more get the shading-ratio term
-#: (`ReconstructOptions.texture_ratio`).
+#: Photos whose albedo edges cover this share of their masks or more are of a fine texture: finer than
+#: the per-vertex albedo holds (`ReconstructOptions.fine_texture`).
 FINE_TEXTURE = 0.3
+#: The settings photos of a fine texture fit with (`fine_texture`), measured on DTU scan24 and the
+#: synthetic photo pair (docs/results.md, "Shading ratios", "The closing polish", "Five cycles for a
+#: fine texture", ...): the albedo-free shading ratios on; the
+#: silhouettes weighed more (the outline the masks give is what shading cannot confuse); the
+#: photometric term less (a per-vertex albedo cannot hold the texture, photo-consistency does better
+#: with less shading); photo-consistency compared unblurred (a blur in each photo's own pixels biases
+#: NCC where two views foreshorten the texture differently); two closing polish cycles; one more
+#: cycle; curvature-adaptive remeshing.
+TEXTURE_SETTINGS = {"shading_ratio": 6.0, "alpha": 4.0, "photo": 1.0, "consistency_blur": 0.0, "polish_cycles": 2,
+                    "n_cycles": 5, "adaptive": True}
+#: Photos of a fine texture that resolve fewer faces than `max_faces` (not held) get a budget lowered
+#: to that count, to no less than this share of `max_faces`.
+TEXTURE_FACES = 2.0 / 3.0
 
 
 def texture_share(photos) -> float:
@@ -204,47 +219,32 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
                  resolved: int = 0) -> ReconstructOptions:
     """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
     edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets on one device, as
-    a process of a split run holds only its own views): `shading_ratio` at `texture_ratio` where it is 0,
-    the silhouette weight `alpha` at `texture_alpha`, the photometric weight `photo` at `texture_photo`
-    and `consistency_blur` at `texture_blur` where they are at their defaults, and `polish_cycles` at
-    `texture_polish` where it is 0, `n_cycles` at `texture_cycles` where it is at its default and the
-    photos resolve fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not
-    counted), and the remeshes curvature-adaptive (`texture_adaptive`). The share is measured on the images the fit sees:
-    a texture the finest level blurs away is no fine texture."""
-    if kind != "photo" or views_layout(n_views, options.devices)[0] is not None:
+    a process of a split run holds only its own views, and `options.fine_texture`): each setting of
+    `TEXTURE_SETTINGS` not in `options.held` at that value, but the colour terms (`consistency_blur`,
+    `polish_cycles`) only with photo-consistency on, and `n_cycles` only where the photos resolve
+    fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not counted) and
+    it is not more already. The share is measured on the images the fit sees: a texture the finest
+    level blurs away is no fine texture."""
+    if kind != "photo" or not options.fine_texture or views_layout(n_views, options.devices)[0] is not None:
         return options
-    weights, change, said = options.optimize.weights, {}, []
-    if options.texture_ratio > 0 and weights.shading_ratio == 0:
-        change["shading_ratio"] = options.texture_ratio
-        said.append(f"shading ratios on, weight {options.texture_ratio:g} (texture_ratio=0 / --option shading_ratio=0: off)")
-    if options.texture_alpha > 0 and weights.alpha == LossWeights().alpha != options.texture_alpha:
-        change["alpha"] = options.texture_alpha
-        said.append(f"silhouette weight {options.texture_alpha:g} (texture_alpha=0: as set)")
-    if options.texture_photo > 0 and weights.photo == LossWeights().photo != options.texture_photo:
-        change["photo"] = options.texture_photo
-        said.append(f"photometric weight {options.texture_photo:g} (texture_photo=0: as set)")
-    default_blur = LossWeights().consistency_blur
-    if weights.consistency > 0 and weights.consistency_blur == default_blur != options.texture_blur:
-        change["consistency_blur"] = options.texture_blur
-        said.append(f"photo-consistency blur {options.texture_blur:g} (texture_blur={default_blur:g}: as set)")
-    if weights.consistency > 0 and options.texture_polish > 0 and options.polish_cycles == 0:
-        change["polish_cycles"] = options.texture_polish
-        said.append(f"{options.texture_polish} closing polish cycles (texture_polish=0: none)")
-    if (options.texture_cycles > options.n_cycles == ReconstructOptions.n_cycles
-            and resolved < 4 * options.face_budget):
-        change["n_cycles"] = options.texture_cycles
-        said.append(f"{options.texture_cycles} cycles (texture_cycles=0 / --option n_cycles=N: as set)")
-    if options.texture_adaptive and options.remesh is not None and not options.remesh.adaptive:
-        change["adaptive"] = True
-        said.append("curvature-adaptive remeshing (texture_adaptive=False: as set)")
+    now = {"shading_ratio": options.optimize.weights.shading_ratio, "alpha": options.optimize.weights.alpha,
+           "photo": options.optimize.weights.photo, "consistency_blur": options.optimize.weights.consistency_blur,
+           "polish_cycles": options.polish_cycles, "n_cycles": options.n_cycles,
+           "adaptive": options.remesh is not None and options.remesh.adaptive}
+    colour = options.optimize.weights.consistency > 0
+    skip = {"consistency_blur": not colour, "polish_cycles": not colour, "adaptive": options.remesh is None,
+            "n_cycles": resolved >= 4 * options.face_budget or now["n_cycles"] >= TEXTURE_SETTINGS["n_cycles"]}
+    change = {k: v for k, v in TEXTURE_SETTINGS.items()
+              if k not in options.held and not skip.get(k, False) and now[k] != v}
     if not change:
         return options
     share = texture_share(photos)
     if share < FINE_TEXTURE:
         return options
     say(f"fine texture: albedo edges cover {share:.0%} of the masks of the finest images fitted "
-        f"(>= {FINE_TEXTURE:.0%}): " + "; ".join(said))
-    return options.updated(**change)
+        f"(>= {FINE_TEXTURE:.0%}): " + ", ".join(f"{k}={v!r}" for k, v in change.items())
+        + " (each held when given by name; fine_texture=False: none)")
+    return options.replaced(**change)
 
 
 def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras, options: ReconstructOptions, say,
@@ -265,7 +265,7 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
     if share < FINE_TEXTURE:
         why = (f"; no carving: albedo edges cover {share:.0%} of the masks, under {FINE_TEXTURE:.0%} (two views "
                "can agree on wrong depths of smooth shading)")
-        options = options.updated(stereo_carve=0.0)
+        options = options.replaced(stereo_carve=0.0)
         if options.optimize.weights.stereo <= 0:
             say("stereo: off" + why)
             return None, None
