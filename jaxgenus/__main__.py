@@ -131,7 +131,12 @@ def _options(args):
         change[name] = value
     if base.remesh is None and "max_faces" in change:  # no remeshing: the start's faces are the budget
         change["initial_faces"] = min(base.initial_faces, change.pop("max_faces"))
-    return base.updated(**change)
+    try:
+        return base.updated(**change)
+    except ValueError as err:  # name the flag that gave the setting
+        named = next((n for n in change if f"options.{n} " in str(err) or f"'{n}'" in str(err)), None)
+        flag = f"--{named.replace('_', '-')}" if named in ("max_faces", "downsample", "devices") else "--option"
+        raise _UsageError(f"{flag}: {err}") from None
 
 
 def _settings_list(opts) -> str:

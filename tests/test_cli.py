@@ -25,12 +25,14 @@ def test_reconstruct_refuses_bad_genus_and_an_output_that_overwrites_an_input(tm
         main(args + ["--genus", "two"])
     assert exc.value.code == 2
     capsys.readouterr()
-    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "refit_carve=-1"]) == 1
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "refit_carve=-1"]) == 2  # usage: names the flag
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "refit_carve" in err
-    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "no_such_setting=1"]) == 1
+    assert err.count("\n") == 1 and err.startswith("error: --option") and "refit_carve" in err
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "no_such_setting=1"]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "no_such_setting" in err
+    assert main(args + ["--out", str(tmp_path / "r.obj"), "--devices", "0"]) == 2
+    assert capsys.readouterr().err.startswith("error: --devices")
     assert main(args + ["--out", str(tmp_path / "r.obj"), "--option", "learning_rate"]) == 1
     assert "NAME=VALUE" in capsys.readouterr().err
     assert main(args + ["--out", str(tmp_path / "r.obj"), "--downsample", "0"]) == 2
