@@ -70,7 +70,8 @@ class ReconstructOptions:
             `hull_resolutions[0]`, largest piece) is thinner than this many pixels of the
             level the first cycles fit, as `2 * volume / area` (a slab's thickness, a
             tube's radius), `reconstruct` runs with `self.fine()` instead
-            (`history["fine"]`, `Reconstruction.options`). 0 turns it off.
+            (`history["fine"]`, `Reconstruction.options`; the settings in `held` keep their values).
+            0 turns it off.
         min_view_iou: the verdict's threshold: a run whose silhouette IoU (result against
             target, both at alpha 0.5) is under this in any view is not ok.
         outlier_gap: the verdict's test of views that disagree with the rest: a view
