@@ -69,7 +69,7 @@ def genus_estimate(images, cams: Cameras, *, targets: str | None = None,
         return setup.estimate
     t0 = time.perf_counter()
     key = jax.random.key(0) if key is None else key
-    setup, _, rec = _first_fit(images, cams, setup, key, FitIndex(0, 1), t0, None, say, views, region)
+    setup, _, rec = _first_fit(setup, key, FitIndex(0, 1), t0, None, say)
     return _with_holes(setup, rec, key, FitIndex(0, 1), t0, None, say, estimate_only=True)[0].estimate
 
 
@@ -79,13 +79,13 @@ def _reads_interior(setup: Setup, genus) -> bool:
             and setup.options.start != "sphere")
 
 
-def _first_fit(images, cams, setup: Setup, key, index: FitIndex, t0: float, callback, say, views, region):
+def _first_fit(setup: Setup, key, index: FitIndex, t0: float, callback, say):
     """`(setup, start, rec)`: the first fit of a run, from its first start."""
-    def fit_genus(g: int) -> Reconstruction:  # the same images at another genus (hidden handles)
-        return reconstruct(images, cams, g, targets=setup.targets.kind,
-                           options=dataclasses.replace(setup.options, hidden_handles="drill", refits=0, subdivide=False,
-                                                       fit_outline=False, fit_photo_depth=False),
-                           key=key, views=views, region=region)
+    def fit_genus(g: int) -> Reconstruction:  # the hidden-handle stage: the same setup fitted at the hull's genus
+        pre = dataclasses.replace(setup, genus=g, options=setup.options.replaced(hidden_handles="drill"))
+        step = lambda line: say(f"hidden handles: fit at genus {g}: {line}")  # noqa: E731
+        return fit(pre, first_start(pre, None, step), pre.options, key, FitIndex(0, 1), t0=time.perf_counter(),
+                   callback=None, say=step)
 
     start = first_start(setup, fit_genus, say)
     say(start_line(start, setup.genus, time.perf_counter() - t0))
@@ -211,7 +211,7 @@ def reconstruct(
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
-    setup, start, rec = _first_fit(images, cams, setup, key, index, t0, callback, say, views, region)
+    setup, start, rec = _first_fit(setup, key, index, t0, callback, say)
     if _reads_interior(setup, genus):
         setup, rec = _with_holes(setup, rec, key, index, t0, callback, say)
     if n_refits and rec.genus_ok:
