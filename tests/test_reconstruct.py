@@ -77,7 +77,8 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     gt, cams, img = torus_scene
     before = img.copy()
     opts = jg.ReconstructOptions().updated(n_cycles=3, steps_per_cycle=50, initial_faces=800, max_faces=3000)
-    rec = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(3))
+    lines = []
+    rec = jg.reconstruct(img, cams, 1, options=opts, key=jax.random.key(3), log=lines.append)
     np.testing.assert_array_equal(img, before)  # inputs untouched
     assert rec.genus == 1 and rec.genus_ok
     assert jg.genus(rec.mesh) == 1 and jg.is_closed_manifold(rec.mesh)
@@ -95,6 +96,14 @@ def test_torus_end_to_end_genus_iou_and_determinism(torus_scene):
     # CAPACITY_EXCEEDED: the remesher coarsened to fit the face budget (still a valid mesh)
     assert all(c["remesh_status"] in ("OK", "CAPACITY_EXCEEDED") for c in h["cycles"][:-1])
     assert all(c["chi"] == 0 for c in h["cycles"])
+    # the plan, made before any fit, is said first and is what ran
+    plan = h["plan"]
+    assert lines[:len(plan.lines())] == plan.lines(), lines
+    assert plan.factors == tuple(r["factor"] for r in h["resolution"]) and plan.floor == 1
+    assert (plan.settings["n_cycles"], plan.settings["max_faces"], plan.settings["normal"]) == (3, 3000, 1.0)
+    assert "photo" not in plan.settings and plan.scene["genus_from"] == "given" and plan.scene["size"] == [64, 64]
+    assert plan.stages[0] == "visual-hull start" and plan.stages[-1] == "verdict on the mesh written"
+    assert json.loads(json.dumps(h.to_json()))["plan"]["factors"] == list(plan.factors)
     # alpha-only targets fit silhouettes only
     rec_a = jg.reconstruct(img[..., 3], cams, 1, options=jg.ReconstructOptions(n_cycles=1, steps_per_cycle=5))
     assert np.all(rec_a.history["normal"] == 0.0)

@@ -233,3 +233,26 @@ def test_the_polish_smooths_by_its_own_lambda():
     polished = _polish_options(opts, level, None)
     assert polished.lambda_ == 5.0 and opts.optimize.lambda_ == 30.0
     assert polished.weights.photo == 0.0 and polished.average == 0.99
+
+
+def test_the_plan_takes_the_fine_texture_settings_once(scene):
+    """The fine-texture settings are chosen once, by the plan, from the photos of the finest level it
+    fits (`planned`): the plan names the choice and its settings, and the options the fits run are the
+    plan's; smooth photos plan the defaults."""
+    from jaxgenus.pipeline._schedule import planned
+    from jaxgenus.pipeline._setup import TEXTURE_SETTINGS, prepare
+
+    cams, photos, _ = scene
+    lines = []
+    setup = planned(prepare(photos["cells"], cams, 1, "photo", jg.ReconstructOptions(), print), True, lines.append)
+    plan = setup.plan
+    assert lines[0].startswith("plan: 24 views") or lines[0].startswith(f"plan: {len(cams)} views"), lines
+    assert all(line.startswith("plan: ") for line in lines)
+    assert any(c.startswith("fine texture:") for c in plan.choices), plan.choices
+    assert plan.scene["texture_share"] >= 0.3 and plan.scene["targets"] == "photo"
+    assert setup.options.optimize.weights.shading_ratio == TEXTURE_SETTINGS["shading_ratio"]
+    assert plan.settings["shading_ratio"] == TEXTURE_SETTINGS["shading_ratio"] and "normal" not in plan.settings
+    assert plan.settings["n_cycles"] == setup.options.n_cycles == len(plan.factors)
+    smooth = planned(prepare(photos["constant"], cams, 1, "photo", jg.ReconstructOptions(), print), True, print)
+    assert not any(c.startswith("fine texture:") for c in smooth.plan.choices)
+    assert "shading_ratio" not in smooth.plan.settings and smooth.options.n_cycles == 4

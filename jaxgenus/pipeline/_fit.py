@@ -20,7 +20,7 @@ from jaxgenus.pipeline._cycles import CycleRun, Level, polish_count, run_one_jit
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._schedule import CostModel, levels as fit_levels, schedule_line, world_lengths
-from jaxgenus.pipeline._setup import Setup, fine_texture
+from jaxgenus.pipeline._setup import Setup
 from jaxgenus.pipeline._start import Start
 from jaxgenus.pipeline._start_stage import refit_start
 from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
@@ -101,7 +101,7 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
         resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop,
                      "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],
         devices=1 if levels[0].valid is None else int(levels[0].valid.sharding.mesh.size),
-        ok=verdict.ok, warnings=(verdict.warnings + estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
+        plan=setup.plan, ok=verdict.ok, warnings=(verdict.warnings + estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
                                  + _device_warnings(setup, options, levels) + list(setup.notes)),
     )
 
@@ -111,10 +111,6 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
     (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
     levels = fit_levels(setup, options, start.mesh)
-    fitted = fine_texture(options, setup.targets.kind, levels[-1].targets, len(setup.cams), say, setup.resolved)
-    if fitted.n_cycles != options.n_cycles:  # a fine texture's cycle count: the schedule laid out again
-        levels = fit_levels(setup, fitted, start.mesh)
-    options = fitted
     lengths = world_lengths(setup, options, levels)
     polish = polish_count(options, levels[-1])
     where = dict(n_cycles=options.n_cycles + polish, fit=index.fit, fits=index.fits)

@@ -20,7 +20,7 @@ from jaxgenus.geometry import Cameras, Mesh
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import render_photo
 
-__all__ = ["CycleRecord", "GenusEstimate", "GenusEvidence", "HandleRecord", "History", "Reconstruction"]
+__all__ = ["CycleRecord", "GenusEstimate", "GenusEvidence", "HandleRecord", "History", "Plan", "Reconstruction"]
 
 
 class _Readable:
@@ -92,6 +92,60 @@ class GenusEstimate(_Readable):
     plausible: tuple[int, ...] = ()
     cue: str = "silhouettes"
     holes: tuple[Mapping[str, Any], ...] = ()
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan(_Readable):
+    """Every automatic choice of a run, made once before any fit from what was measured
+    (`pipeline._schedule.planned`), printed first and kept in `history["plan"]`. Each entry
+    of `settings` is a setting's own name: `ReconstructOptions.updated(NAME=VALUE)` (CLI
+    `--option NAME=VALUE`) holds it, and the plan then keeps it.
+
+    Attributes:
+        scene: what was measured: `views`, `size` `[width, height]` of the images fitted,
+            `targets`, `genus` and whether it was `"given"` or `"estimated"`, `hull_thickness_px`,
+            `texture_share` (photos: the share of the masks on albedo edges at the finest
+            level), `resolved_faces` (photos: the faces they resolve; 0: not counted), `devices`.
+        stages: the stages of the run in order (some run only where their condition holds,
+            said in the stage's text).
+        factors: per fit cycle, the downsampling factor of the level it fits (then the polish
+            cycles at the last level).
+        floor: the finest level (factor) the images are fitted at, from the face budget on the
+            visual hull's area (`detail_floor`).
+        settings: the settings the run chooses, by name: those a rule set (fine(), a fine
+            texture, the face budget) and the fit's cycles, steps, face budget and nonzero
+            loss weights.
+        choices: one line per rule that changed a setting, with its measurement.
+        views_per_step, pixels_per_step: what a step of the last level renders.
+        image_bytes: memory the images and their pyramid levels take (float32).
+    """
+
+    scene: Mapping[str, Any]
+    stages: tuple[str, ...]
+    factors: tuple[int, ...]
+    floor: int
+    settings: Mapping[str, Any]
+    choices: tuple[str, ...] = ()
+    views_per_step: int = 0
+    pixels_per_step: int = 0
+    image_bytes: int = 0
+
+    def lines(self) -> list[str]:
+        """The plan as printed (`reconstruct`'s log, the CLI)."""
+        sc = self.scene
+        w, h = sc["size"]
+        shown = ", ".join(f"{k}={v!r}" for k, v in self.settings.items())
+        return [f"plan: {sc['views']} views of {w}x{h}, {sc['targets']}, genus {sc['genus']} ({sc['genus_from']})"
+                + ("" if sc.get("hull_thickness_px") is None else f", visual hull {sc['hull_thickness_px']:.1f} px thick")
+                + ("" if sc.get("texture_share") is None else f", albedo edges on {sc['texture_share']:.0%} of the masks")
+                + (f", about {sc['resolved_faces']} faces resolved" if sc.get("resolved_faces") else "")
+                + (f", {sc['devices']} devices" if sc.get("devices", 1) > 1 else ""),
+                "plan: stages: " + " -> ".join(self.stages),
+                f"plan: levels 1/{', 1/'.join(str(f) for f in self.factors)} (no finer than 1/{self.floor}); the last "
+                f"renders {self.views_per_step} views, {self.pixels_per_step / 1e6:.2f} Mpixel a step; images "
+                f"{self.image_bytes / 2**20:.0f} MiB with their levels",
+                f"plan: settings {shown}", *[f"plan: chose {c}" for c in self.choices],
+                "plan: each setting holds when given by name (ReconstructOptions.updated, CLI --option NAME=VALUE)"]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -207,6 +261,7 @@ class History(_Readable):
         handles: per handle of the start, a `HandleRecord` of where it came from.
         ok: the result matches its images (see `jaxgenus.pipeline._verdict`); warnings: why not,
             and what else to know.
+        plan: the run's `Plan`, made before any fit.
     """
 
     steps: Mapping[str, np.ndarray]
@@ -235,6 +290,7 @@ class History(_Readable):
     ok: bool = True
     warnings: list[str] = dataclasses.field(default_factory=list)
     faces: int = 0
+    plan: Plan | None = None
 
     def __getitem__(self, key: str) -> Any:
         if key in self.steps:

@@ -30,6 +30,7 @@ from jaxgenus.pipeline._fit import FitIndex, estimate_warnings, fit, refits, sta
 from jaxgenus.pipeline._handles import HoleTests, hole_tests
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.pipeline._schedule import planned
 from jaxgenus.pipeline._setup import Setup, prepare
 from jaxgenus.pipeline._start import Start, remeshed_start
 from jaxgenus.pipeline._verdict import Evidence, judged_as_written
@@ -64,13 +65,25 @@ def genus_estimate(images, cams: Cameras, *, targets: str | None = None,
     if not isinstance(options, ReconstructOptions):
         raise ValueError(f"options must be a ReconstructOptions, got {type(options).__name__}")
     say = log if log is not None else (lambda line: None)
-    setup = prepare(images, cams, None, targets, options, say, views, region)
+    setup = _planned_setup(images, cams, None, targets, options, say, views, region)
     if not _reads_interior(setup, None):
         return setup.estimate
     t0 = time.perf_counter()
     key = jax.random.key(0) if key is None else key
     setup, _, rec = _first_fit(setup, key, FitIndex(0, 1), t0, None, say)
     return _with_holes(setup, rec, key, FitIndex(0, 1), t0, None, say, estimate_only=True)[0].estimate
+
+
+def _planned_setup(images, cams, genus, targets, options, say, views, region) -> Setup:
+    """The run's `Setup` (`prepare`) with its `Plan` (`planned`); the plan is said first, then
+    what was measured for it."""
+    measured = []
+    setup = prepare(images, cams, genus, targets, options, measured.append, views, region)
+    setup = planned(setup, genus is not None, say)
+    for line in measured:
+        if line not in setup.choices:  # said in the plan
+            say(line)
+    return setup
 
 
 def _reads_interior(setup: Setup, genus) -> bool:
@@ -207,7 +220,7 @@ def reconstruct(
     _check_arguments(genus, options)
     if callback is not None:
         callback = _timed(callback, waited)
-    setup = prepare(images, cams, genus, targets, options, say, views, region)
+    setup = _planned_setup(images, cams, genus, targets, options, say, views, region)
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 

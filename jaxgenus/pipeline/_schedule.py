@@ -25,11 +25,12 @@ from jaxgenus.geometry import Mesh
 from jaxgenus.optim import (outside_distance, place, place_held, pyramid_level, resolution_factors, scaled_cameras,
                             step_views, view_neighbours, views_layout)
 from jaxgenus.pipeline._cycles import Level
-from jaxgenus.pipeline._history import CycleRecord
+from jaxgenus.pipeline._history import CycleRecord, Plan
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._setup import Setup
+from jaxgenus.pipeline._setup import Setup, fine_texture, texture_share
 
-__all__ = ["CostModel", "PIXELS_PER_FACE", "levels", "detail_floor", "schedule_line", "world_lengths"]
+__all__ = ["CostModel", "PIXELS_PER_FACE", "detail_floor", "fit_factors", "levels", "planned", "schedule_line",
+           "world_lengths"]
 
 #: The prior of a step's fixed cost in pixels rendered, per face of the mesh, used while only one
 #: level has been timed (DTU scan65 on 2 CPU cores at 9k faces: 0.13 s per step at 30k pixels,
@@ -43,10 +44,16 @@ def _consistency_used(setup: Setup, options: ReconstructOptions) -> bool:
             and views_layout(len(setup.cams), options.devices)[0] is None)
 
 
-def detail_floor(setup: Setup, options: ReconstructOptions, start: Mesh) -> int:
+def _area(mesh: Mesh) -> float:
+    v, f = mesh.to_numpy()
+    v = np.asarray(v, np.float64)
+    return float(0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+
+
+def detail_floor(setup: Setup, options: ReconstructOptions, surface: Mesh) -> int:
     """The finest level (downsampling factor, a power of two) worth fitting photos or silhouettes at:
-    the one whose pixels are half the edge length the face budget allows on the start's surface
-    (its area in equilateral faces). The albedo lives on the vertices; in finer images the photos' texture, which it cannot
+    the one whose pixels are half the edge length the face budget allows on `surface` (the visual
+    hull when the plan is made; its area in equilateral faces). The albedo lives on the vertices; in finer images the photos' texture, which it cannot
     hold, moves the surface instead. Silhouettes too: their outline is no finer than the mesh's
     edges, and the full-size level samples one view a step. Normal maps are fitted to the full size
     (their shading shows detail at every pixel). With photo-consistency the pixels are a quarter of
@@ -54,26 +61,31 @@ def detail_floor(setup: Setup, options: ReconstructOptions, start: Mesh) -> int:
     the surface to a fraction of a pixel (measurements: docs/results.md, "Captures at full size")."""
     if setup.targets.kind == "normals":
         return 1
-    v, f = start.to_numpy()
-    v = np.asarray(v, np.float64)
-    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum()
-    edge = math.sqrt(4.0 * area / (math.sqrt(3.0) * max(options.face_budget, 1)))
+    edge = math.sqrt(4.0 * _area(surface) / (math.sqrt(3.0) * max(options.face_budget, 1)))
     ratio = edge / ((4.0 if _consistency_used(setup, options) else 2.0) * setup.pixel)
     return 2 ** int(math.floor(math.log2(ratio))) if ratio >= 2 else 1
 
 
-def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level]:
-    """The level each cycle fits: downsampled copies of the targets (the schedule, photos no finer
-    than `detail_floor`), the native level through crops when `optimize.crop` is set (only after
-    downsampled cycles); one program of `one_jit` fits the last level throughout."""
+def fit_factors(setup: Setup, options: ReconstructOptions, floor: int) -> list[int]:
+    """Per cycle, the downsampling factor of the level it fits: the schedule (`resolution_factors`),
+    no finer than `floor` after the first; `one_jit`: the last level throughout."""
     cams = setup.cams
     factors = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
                                  options.native_cycles)
-    scheduled = factors[0] > 1
-    floor = detail_floor(setup, options, start)
-    factors = [max(f, min(floor, factors[0])) if scheduled else f for f in factors]
-    if options.one_jit:  # one program, one image size: the last level throughout
-        factors = [factors[-1]] * options.n_cycles
+    if factors[0] > 1:
+        factors = [max(f, min(floor, factors[0])) for f in factors]
+    return [factors[-1]] * options.n_cycles if options.one_jit else factors
+
+
+def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level]:
+    """The level each cycle fits: downsampled copies of the targets (the schedule, photos no finer
+    than the plan's floor, `detail_floor`), the native level through crops when `optimize.crop` is set (only after
+    downsampled cycles); one program of `one_jit` fits the last level throughout."""
+    cams = setup.cams
+    floor = setup.plan.floor if setup.plan is not None else detail_floor(setup, options, start)
+    factors = fit_factors(setup, options, floor)
+    scheduled = resolution_factors(cams.height, cams.width, options.n_cycles, options.coarse_resolution,
+                                   options.native_cycles)[0] > 1
     table = None
     if _consistency_used(setup, options):  # photo-consistency pairs: views that see the same part of the start
         table = jnp.asarray(view_neighbours(cams, points=np.asarray(start.to_numpy()[0], np.float64)))
@@ -205,3 +217,84 @@ class CostModel:
             fitted.add(program(c))
         verdict = (b if b > 0 else self.prior(done)) * self.verdict_pixels / 3.0  # forward only: a third of a step's
         return total + verdict
+
+
+#: The loss weights that do not act on targets of a kind (left out of the plan), and those of photo-consistency.
+_PHOTO = {"photo", "albedo_smoothness", "albedo_edges", "shading_ratio", "consistency", "stereo", "consistency_blur",
+          "consistency_colour"}
+_UNUSED = {"normals": _PHOTO, "silhouette": _PHOTO | {"normal", "carve"}, "photo": {"normal", "carve"}}
+_COLOUR = {"consistency", "stereo", "consistency_blur", "consistency_colour"}
+
+
+def planned(setup: Setup, genus_given: bool, say) -> Setup:
+    """`setup` with its `Plan` (`pipeline._history.Plan`), made once before any fit: the finest level
+    from the face budget on the visual hull (`detail_floor`), the settings of a fine texture measured
+    on that level's photos (`fine_texture`), the levels, stages and what a step renders; `say(line)`
+    for each line of it. The fits, refits and the hidden-handle stage all run `setup.options` and
+    `setup.plan` as made here."""
+    options, tg, cams = setup.options, setup.targets, setup.cams
+    hull = None if tg.kind == "normals" else setup.hulls.get(options.hull_resolutions[0], 0)[0]
+    floor = detail_floor(setup, options, hull) if hull is not None else 1
+    chose, share = list(setup.choices), None
+    if tg.kind == "photo":
+        photos = np.asarray(pyramid_level(tg.fit, fit_factors(setup, options, floor)[-1], normals=False))
+        share = texture_share(photos)
+
+        options = fine_texture(options, tg.kind, photos, len(cams), chose.append, setup.resolved, share=share)
+        floor = detail_floor(setup, options, hull) if hull is not None else 1
+    factors = fit_factors(setup, options, floor)
+    last = factors[-1]
+    lc = scaled_cameras(cams, last)
+    crop = options.optimize.crop if last == 1 and factors[0] > 1 else 0
+    views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
+    pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
+    size = int(np.prod(np.shape(tg.fit))) * 4
+    weights = {f.name: getattr(options.optimize.weights, f.name) for f in dataclasses.fields(options.optimize.weights)
+               if f.name not in _UNUSED[tg.kind]}
+    if not _consistency_used(setup, options):
+        weights = {k: v for k, v in weights.items() if k not in _COLOUR}
+    if setup.stereo is None:
+        weights.pop("stereo", None)
+    settings = {"n_cycles": options.n_cycles, "steps_per_cycle": options.steps_per_cycle,
+                "max_faces": options.face_budget, **{k: v for k, v in weights.items() if v}}
+    polish = options.polish_cycles if _consistency_used(setup, options) else 0
+    if polish:
+        settings["polish_cycles"] = polish
+    mesh = views_layout(len(cams), options.devices)[0]
+    scene = {"views": len(cams), "size": [cams.width, cams.height], "targets": tg.kind, "genus": setup.genus,
+             "genus_from": "given" if genus_given else "estimated", "devices": 1 if mesh is None else int(mesh.size),
+             "hull_thickness_px": setup.thickness, "texture_share": share, "resolved_faces": setup.resolved}
+    plan = Plan(scene=scene, stages=_stages(setup, options, genus_given, polish, last), factors=tuple(factors),
+                floor=floor, settings=settings, choices=tuple(chose), views_per_step=views, pixels_per_step=pixels,
+                image_bytes=int(size * (1 + sum(1.0 / f**2 for f in set(factors) if f > 1))))
+    for line in plan.lines():
+        say(line)
+    return dataclasses.replace(setup, options=options, plan=plan)
+
+
+def _stages(setup: Setup, options: ReconstructOptions, genus_given: bool, polish: int, last: int) -> tuple[str, ...]:
+    """The stages a run of `options` on `setup` runs, in order (`Plan.stages`)."""
+    kind, normals = setup.targets.kind, setup.targets.kind == "normals"
+    start = {"auto": "visual-hull start", "sphere": "sphere start", "primitive": "genus-g primitive start"}
+    stages = [start[options.start]]
+    if options.start == "auto":
+        stages.append("handles the hull lacks: " + ("a fit at its genus, cut where the normal images show holes"
+                                                    if normals and options.hidden_handles == "images" else "drilled"))
+    stages.append(f"fit {options.n_cycles} cycles x {options.steps_per_cycle} steps"
+                  + (f" + {polish} polish cycles" if polish else ""))
+    if not genus_given and normals and options.hidden_handles == "images" and options.start != "sphere":
+        stages.append("genus: holes the normal images confirm counted and cut, then a fit")
+    refits = options.refit_count(setup.cams.height, setup.cams.width, kind)
+    if refits:
+        stages.append(f"up to {refits} refits")
+    if normals:
+        stages.append("topology check")
+    if options.fill_unseen and kind == "photo":
+        stages.append("unseen surface")
+    if options.subdivide:
+        stages.append("subdivision where coarse")
+    if last > 1 and options.fit_outline:
+        stages.append("outline at full size")
+    if last > 1 and options.fit_photo_depth and kind == "photo":
+        stages.append("depth at full size")
+    return tuple(stages + ["verdict on the mesh written"])

@@ -25,7 +25,7 @@ from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupanc
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim import (albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
                             view_neighbours, views_layout)
-from jaxgenus.pipeline._history import GenusEstimate
+from jaxgenus.pipeline._history import GenusEstimate, Plan
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
 
@@ -72,6 +72,8 @@ class Setup:
         stereo: photo targets on one device: `(depths (N, h, w), factor)`, the plane-sweep depths
             (canonical frame; NaN: none) of `targets.fit` downsampled by `factor`; else None.
         resolved: the faces the photos resolve (`detail_budget`); 0 where not counted.
+        choices: the lines of the choices made here (the thin-structure switch, the face budget).
+        plan: the run's `Plan` (`pipeline._schedule.planned`), None until it is made.
     """
 
     images: object
@@ -91,6 +93,8 @@ class Setup:
     held: np.ndarray | None = None
     stereo: tuple[np.ndarray, int] | None = None
     resolved: int = 0
+    choices: tuple[str, ...] = ()
+    plan: Plan | None = None
 
     def held_cams(self) -> Cameras:
         """The cameras (canonical frame) of the views this process holds."""
@@ -216,7 +220,7 @@ def texture_share(photos) -> float:
 
 
 def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, say: Callable[[str], None],
-                 resolved: int = 0) -> ReconstructOptions:
+                 resolved: int = 0, share: float | None = None) -> ReconstructOptions:
     """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
     edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets on one device, as
     a process of a split run holds only its own views, and `options.fine_texture`): each setting of
@@ -224,7 +228,7 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     `polish_cycles`) only with photo-consistency on, and `n_cycles` only where the photos resolve
     fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not counted) and
     it is not more already. The share is measured on the images the fit sees: a texture the finest
-    level blurs away is no fine texture."""
+    level blurs away is no fine texture. `share`: `texture_share(photos)` when measured already."""
     if kind != "photo" or not options.fine_texture or views_layout(n_views, options.devices)[0] is not None:
         return options
     now = {"shading_ratio": options.optimize.weights.shading_ratio, "alpha": options.optimize.weights.alpha,
@@ -238,7 +242,7 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
               if k not in options.held and not skip.get(k, False) and now[k] != v}
     if not change:
         return options
-    share = texture_share(photos)
+    share = texture_share(photos) if share is None else share
     if share < FINE_TEXTURE:
         return options
     say(f"fine texture: albedo edges cover {share:.0%} of the masks of the finest images fitted "
@@ -407,9 +411,15 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     hulls = HullTable(alpha, hull_cams, (lo, hi), carve, region)
     notes = _cut_note(alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
-    thickness, fine = _thin(canonical, hulls, pixel, options, say)
-    options, resolved = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, say)
+    chose = []
+
+    def decide(line):
+        chose.append(line)
+        say(line)
+
+    thickness, fine = _thin(canonical, hulls, pixel, options, decide)
+    options, resolved = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, decide)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options,
-                 notes=notes, held=held, stereo=stereo, resolved=resolved)
+                 notes=notes, held=held, stereo=stereo, resolved=resolved, choices=tuple(chose))
