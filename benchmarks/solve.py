@@ -1,25 +1,23 @@
-"""lineax CG (`jg.optim.largesteps_solve`) against a hand-written Jacobi-PCG, alone and inside an optimizer step.
+"""The large-steps solve: direct (the native sparse Cholesky factor) against lineax CG, alone and in a step.
 
-`jg.optim.largesteps_solve` solves `(I + lambda L) x = b` with `lineax.CG` (vmapped over
-the 3 coordinate columns, Jacobi preconditioner, warm start). `hand_pcg` below
-is the hand-written Jacobi-preconditioned CG the library used before, with the
-same stopping rule (per column, `||r_c|| <= rtol ||b_c||` by the CG recursion),
-the same warm-start rule and the same `SolveInfo`. Meshes: icosphere (2562
-vertices), torus (4992), icosphere (10242), padded to their capacity bucket.
+`jg.optim.largesteps_solve` solves `(I + lambda L) x = b`. On the CPU `optimize_block`
+factors the matrix once per block (`jg.optim.largesteps_factor`) and solves with the
+factor; CG (`lineax.CG`, vmapped over the 3 columns, Jacobi preconditioner, warm start)
+is what runs where there is no factor (another platform, a factor too large for its
+buffer). Meshes: icosphere (2562 vertices), torus (4992), icosphere (10242), padded to
+their capacity bucket.
 
-1. One solve, jit-compiled, float32, rtol 1e-6: cold (x0 = 0) and warm (x0 =
-   the solution plus 1e-3 noise per coordinate, as in `benchmarks/step_cost.py`).
-2. One `optimize_block` step (a block of `--steps` steps, after compiling it):
-   optimizer only (bilaplacian energy, no render) and the full step (alpha +
-   normal images). The hand-written solver is put behind
-   `jaxgenus.optim._optimize.largesteps_solve` for this measurement only; its blocks
-   use `cg_max_iter=1999` (the library's 2000) so the two compile separately.
+1. One solve, jit-compiled, float32 (CG at rtol 1e-6): cold (x0 = 0) and warm (x0 = the
+   solution plus 1e-3 noise per coordinate). The factor's own time is its column.
+2. One `optimize_block` step (a block of `--steps` steps, after compiling it): optimizer
+   only (bilaplacian energy, no render) and the full step (alpha + normal images). CG is
+   forced for this measurement only by a factor buffer of one entry (`ok` False).
 
-The two implementations are timed interleaved (A B A B ...), `--rounds` times;
-the tables give the median (and the best) in milliseconds, the CG iterations,
-the true relative residual and `converged`.
+The two are timed interleaved (A B A B ...), `--rounds` times; the tables give the median
+(and the best) in milliseconds, the CG iterations, the true relative residual and
+`converged`; `--plot` writes the step times as a bar chart.
 
-    python benchmarks/solve.py --rounds 7 --steps 10
+    python benchmarks/solve.py --rounds 7 --steps 10 --plot benchmarks/solve.png
 """
 
 from __future__ import annotations
@@ -36,57 +34,9 @@ import trimesh
 
 import jaxgenus as jg
 from _problem import stretched_fit
-import jaxgenus.optim._optimize as optimize_module  # only to swap the solver for the step measurement
+import jaxgenus.optim._optimize as optimize_module  # only to force CG for the step measurement
 
-
-def hand_pcg(laplacian, b, lambda_=19.0, x0=None, *, rtol=1e-6, max_iter=2000):
-    """Jacobi-PCG per coordinate column in one `lax.while_loop` (the library's former solver)."""
-
-    def matvec(v):
-        return v + lambda_ * laplacian(v)
-
-    def norms(r):
-        return jnp.sqrt(jnp.sum(r * r, axis=0))
-
-    inv_diag = (1.0 / (1.0 + lambda_ * laplacian.degree)).astype(b.dtype)[:, None]
-    bnorm = norms(b)
-    nonzero = bnorm > 0
-    if x0 is None:
-        x, r = jnp.zeros_like(b), b
-    else:
-        x = x0.astype(b.dtype)
-        r = b - matvec(x)
-        keep = nonzero & (norms(r) < bnorm)
-        x, r = jnp.where(keep, x, 0.0), jnp.where(keep, r, b)
-    tol2 = (rtol * bnorm) ** 2
-    tiny = jnp.finfo(b.dtype).tiny
-
-    def active(r):
-        return nonzero & (jnp.sum(r * r, axis=0) > tol2)
-
-    def cond(c):
-        return (c[0] < max_iter) & jnp.any(active(c[2]))
-
-    def body(c):
-        k, x, r, p, rz = c
-        on = active(r)
-        ap = matvec(p)
-        pap = jnp.sum(p * ap, axis=0)
-        alpha = jnp.where(on & (pap > tiny), rz / jnp.where(pap > tiny, pap, 1.0), 0.0)
-        x, r = x + alpha * p, r - alpha * ap
-        z = inv_diag * r
-        rz_new = jnp.sum(r * z, axis=0)
-        beta = jnp.where(rz > tiny, rz_new / jnp.where(rz > tiny, rz, 1.0), 0.0)
-        return k + 1, x, r, jnp.where(on, z + beta * p, p), rz_new
-
-    z = inv_diag * r
-    k, x, r, _, _ = jax.lax.while_loop(cond, body, (jnp.int32(0), x, r, z, jnp.sum(r * z, axis=0)))
-    rel = jnp.max(jnp.where(nonzero, norms(b - matvec(x)) / jnp.where(nonzero, bnorm, 1.0), 0.0))
-    finite = jnp.all(jnp.isfinite(bnorm)) & jnp.isfinite(rel)
-    return x, jg.optim.SolveInfo(iterations=k, residual=rel, converged=~jnp.any(active(r)) & finite)
-
-
-SOLVERS = {"lineax CG": jg.optim.largesteps_solve, "hand-written PCG": hand_pcg}
+SOLVERS = ("direct", "lineax CG")
 
 
 def meshes():
@@ -115,7 +65,13 @@ def solve_rows(name, mesh, lam, rounds, reps):
     b = jnp.where(mesh.vertex_mask[:, None], x + lam * lap(x), 0.0)
     noise = 1e-3 * jax.random.normal(jax.random.key(0), x.shape, x.dtype)
     starts = {"cold": jnp.zeros_like(b), "warm": jnp.where(mesh.vertex_mask[:, None], x + noise, 0.0)}
-    fns = {k: jax.jit(lambda b, x0, f=f: f(lap, b, lam, x0, rtol=1e-6)) for k, f in SOLVERS.items()}
+    factor_fn = jax.jit(lambda lap: jg.optim.largesteps_factor(lap, lam))
+    factor = jax.block_until_ready(factor_fn(lap))
+    factor_ms = min(timed(lambda: factor_fn(lap), reps)[0] for _ in range(rounds))
+    fns = {
+        "direct": jax.jit(lambda b, x0: jg.optim.largesteps_solve(lap, b, lam, x0, factor=factor)),
+        "lineax CG": jax.jit(lambda b, x0: jg.optim.largesteps_solve(lap, b, lam, x0, rtol=1e-6)),
+    }
     compile_s, info = {}, {}
     for k, fn in fns.items():
         t0 = time.perf_counter()
@@ -131,8 +87,9 @@ def solve_rows(name, mesh, lam, rounds, reps):
     rows = []
     for (k, s), ts in times.items():
         i = info[k, s]
+        f_col = f"{factor_ms:.1f} ({int(factor.entries) / n:.0f}/vertex)" if k == "direct" else "-"
         rows.append(
-            f"| {name} ({n}) | {lam:g} | {s} | {k} | {int(i.iterations)} | {float(i.residual):.1e} | "
+            f"| {name} ({n}) | {lam:g} | {s} | {k} | {f_col} | {int(i.iterations)} | {float(i.residual):.1e} | "
             f"{bool(i.converged)} | {np.median(ts):.1f} | {min(ts):.1f} | {compile_s[k]:.1f} |"
         )
     return rows
@@ -144,8 +101,9 @@ def step_rows(name, mesh, args):
         ("optimizer only", jg.LossWeights(alpha=0.0, normal=0.0, bilaplacian=1e-3)),
         ("full step", jg.LossWeights()),
     ]
-    rows = []
-    original = optimize_module.largesteps_solve
+    rows, medians = [], {}
+    original = optimize_module.largesteps_factor
+    no_factor = lambda lap, lam: original(lap, lam, capacity=1)
     try:
         for label, weights in settings:
             opts = {
@@ -155,13 +113,13 @@ def step_rows(name, mesh, args):
                     render=jg.RenderSettings(plan=plan),
                     learning_rate=3e-2,
                     adam_quantile=1.0,
-                    cg_max_iter=2000 if k == "lineax CG" else 1999,
+                    cg_max_iter=2000 if k == "direct" else 1999,  # two programs, compiled apart
                 )
                 for k in SOLVERS
             }
 
             def run(k):
-                optimize_module.largesteps_solve = SOLVERS[k] if k != "lineax CG" else original
+                optimize_module.largesteps_factor = original if k == "direct" else no_factor
                 state = jg.optim.init_optimizer_state(mesh, jax.random.key(0))
                 t0 = time.perf_counter()
                 _, rec = jax.block_until_ready(
@@ -179,6 +137,7 @@ def step_rows(name, mesh, args):
                     ms, recs[k] = run(k)
                     times[k].append(ms)
             for k in SOLVERS:
+                medians[name, label, k] = np.median(times[k])
                 rec = jax.tree.map(np.asarray, recs[k])
                 rows.append(
                     f"| {name} ({int(mesh.n_vertices)}) | {label} | {k} | {np.median(times[k]):.1f} | "
@@ -187,8 +146,8 @@ def step_rows(name, mesh, args):
                     f"{int(rec['status'].max())} |"
                 )
     finally:
-        optimize_module.largesteps_solve = original
-    return rows
+        optimize_module.largesteps_factor = original
+    return rows, medians
 
 
 def main():
@@ -202,6 +161,7 @@ def main():
     ap.add_argument("--views-per-step", type=int, default=6)
     ap.add_argument("--resolution", type=int, default=128)
     ap.add_argument("--skip-steps", action="store_true", help="only the solve table")
+    ap.add_argument("--plot", default=None, help="write the step times (ms) as a bar chart to this PNG")
     args = ap.parse_args()
     print(
         f"jax {jax.__version__} on {jax.default_backend()} ({platform.machine()}, {os.cpu_count()} CPUs), float32; "
@@ -209,8 +169,8 @@ def main():
     )
     ms = meshes()
     print(
-        "| mesh (vertices) | lambda | start | solver | CG iterations | true rel. residual | converged | "
-        "ms median | ms best | compile s |\n|---|---|---|---|---|---|---|---|---|---|"
+        "| mesh (vertices) | lambda | start | solver | factor ms (entries) | CG iterations | true rel. residual | "
+        "converged | ms median | ms best | compile s |\n|---|---|---|---|---|---|---|---|---|---|---|"
     )
     for name, mesh in ms:
         for lam in (float(s) for s in args.lambdas.split(",")):
@@ -226,8 +186,27 @@ def main():
         "CG iters x (mean) | CG iters grad (mean) | max rel. residual | worst status |\n"
         "|---|---|---|---|---|---|---|---|---|---|"
     )
+    medians = {}
     for name, mesh in ms:
-        print("\n".join(step_rows(name, mesh, args)), flush=True)
+        rows, m = step_rows(name, mesh, args)
+        medians.update(m)
+        print("\n".join(rows), flush=True)
+    if args.plot:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        groups = sorted({(n, label) for n, label, _ in medians}, key=lambda g: (g[1], g[0]))
+        fig, ax = plt.subplots(figsize=(8, 3.5))
+        for i, k in enumerate(SOLVERS):
+            ax.bar(np.arange(len(groups)) + 0.4 * i, [medians[g + (k,)] for g in groups], 0.4, label=k)
+        ax.set_xticks(np.arange(len(groups)) + 0.2, [f"{n}\n{label}" for n, label in groups], fontsize=7)
+        ax.set_ylabel("ms per step (median)")
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=120)
+        print(f"wrote {args.plot}")
 
 
 if __name__ == "__main__":

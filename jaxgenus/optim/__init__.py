@@ -11,9 +11,12 @@ from jaxgenus.optim._consistency import (ROBUST_SPREAD, STEREO_SCALE, consistenc
                                          stereo_depth_cost, view_neighbours)
 from jaxgenus.optim._containment import containment_penalty, outside_distance
 from jaxgenus.optim._largesteps import (
+    Factor,
     SolveInfo,
+    factor_capacity,
     from_differential,
     lambda_from_alpha,
+    largesteps_factor,
     largesteps_solve,
     to_differential,
 )
@@ -44,6 +47,7 @@ __all__ = [
     "OptimizeOptions",
     "OptimizerState",
     "RECORD_KEYS",
+    "Factor",
     "SolveInfo",
     "StepRecord",
     "UniformAdamState",
@@ -57,10 +61,12 @@ __all__ = [
     "STEREO_SCALE",
     "containment_penalty",
     "count_compilations",
+    "factor_capacity",
     "from_differential",
     "image_loss",
     "init_optimizer_state",
     "lambda_from_alpha",
+    "largesteps_factor",
     "largesteps_solve",
     "objective",
     "optimize_block",

@@ -31,7 +31,7 @@ from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from jaxgenus.optim._adam import UniformAdamState, adam as plain_adam, uniform_adam
 from jaxgenus.geometry import inverted_face_count
-from jaxgenus.optim._largesteps import DEFAULT_LAMBDA, largesteps_solve, to_differential
+from jaxgenus.optim._largesteps import DEFAULT_LAMBDA, largesteps_factor, largesteps_solve, to_differential
 from jaxgenus.optim._loss import LossWeights, objective, render_channels
 from jaxgenus.geometry import Mesh, settings_repr
 from jaxgenus.geometry import uniform_laplacian
@@ -65,7 +65,8 @@ class OptimizeOptions:
         weights: `LossWeights` of the objective.
         views_per_step: number of cameras sampled (without replacement) per step;
             `None`, or at least the number of cameras, uses all of them every step.
-        cg_rtol, cg_max_iter: stopping rule of the CG solves.
+        cg_rtol, cg_max_iter: stopping rule of the CG solves (where the solve is not direct: off the
+            CPU, or a mesh whose factor does not fit `factor_capacity`).
         average: the block returns the exponential moving average of its iterates,
             `x_avg <- average * x_avg + (1 - average) * x` after every step (from
             the block's starting `x`), instead of the last iterate; 0 (default) is
@@ -309,8 +310,11 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         return objective(m, cams, tgt, rest_x, weights=options.weights, renderer=options.renderer,
                          render_settings=options.render, appearance=app, outside=out, neighbours=near)
 
+    factor = largesteps_factor(laplacian, options.lambda_)  # once a block: the mesh's connectivity is fixed in it
+
     def solve(b, x0):
-        return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter)
+        return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter,
+                                factor=factor)
 
     geometry = (mesh.faces, mesh.n_vertices, mesh.n_faces, rest)  # passed, not closed over (device meshes)
     stereo = None

@@ -32,7 +32,7 @@ RECORD_KEYS = (
 `loss` and the weighted terms are evaluated at the step's starting `x` (a term
 that is switched off reads 0); `grad_norm` is `||d loss / d x||`;
 `cg_iterations_*` are the iterations of the gradient pull-back (backward) and
-of the new-`x` solve (forward); `cg_residual` is the larger true relative
+of the new-`x` solve (forward), 0 where the solve is direct (the factor, on CPU); `cg_residual` is the larger true relative
 residual of the two; `inverted_faces` counts faces flipped relative to the rest
 shape after the step; `status` is 0 (ok), 1 (a solve hit `cg_max_iter`) or
 2 (non-finite loss, gradient or update: the step is skipped, the state unchanged)."""

@@ -169,6 +169,8 @@ NB_MODULE(_native, m) {
     table["jaxgenus_remesh"] = Capsule(JgRemesh);
     table["jaxgenus_raster_forward"] = Capsule(JgRasterForward);
     table["jaxgenus_raster_backward"] = Capsule(JgRasterBackward);
+    table["jaxgenus_cholesky_factor"] = Capsule(JgCholeskyFactor);
+    table["jaxgenus_cholesky_solve"] = Capsule(JgCholeskySolve);
     return table;
   });
   m.attr("REPORT_SIZE") = int(jaxgenus::kReportSize);
