@@ -27,8 +27,8 @@ def _seg_d2(px, py, ax, ay, bx, by):
     return dx * dx + dy * dy
 
 
-def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True, background=None,
-                 light=None, ambient=0.3):
+def _dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True, background=None,
+                  light=None, ambient=0.3):
     bgs = {"normal": jnp.zeros(3), "depth": jnp.zeros(1), "shaded": jnp.zeros(1)}
     for k, v in (background or {}).items():
         bgs[k] = jnp.atleast_1d(jnp.asarray(v, jnp.float32))
@@ -133,3 +133,8 @@ def dense_render(mesh, cameras, *, channels, sigma, gamma, znear=1e-4, cull=True
             res.append(alpha * blended + (1 - alpha) * bgs[c])  # composited over the background
         outs.append(jnp.concatenate(res, -1))
     return jnp.stack(outs)
+
+
+#: One compiled program per scene and setting (the forward pass and, under `jax.grad`, its
+#: transpose), not an op-by-op trace: the reference's arithmetic is unchanged.
+dense_render = jax.jit(_dense_render, static_argnames=("channels", "sigma", "gamma", "znear", "cull", "ambient"))

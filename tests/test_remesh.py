@@ -4,11 +4,6 @@ Topology is checked with checkers independent of the remesher's own validate():
 the native mesh checker (`mesh_report`, a separate kernel) and trimesh.
 """
 
-import os
-import shutil
-import subprocess
-from pathlib import Path
-
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -21,9 +16,6 @@ import jaxgenus as jg
 from _meshes import torus
 from jaxgenus._ffi import native
 from conftest import shared_mesh_table, shared_meshes_dir
-
-REPO = Path(__file__).resolve().parents[1]
-
 
 def torus_grid(n, m, R=1.0, r=0.35):
     u, v = np.meshgrid(2 * np.pi * np.arange(n) / n, 2 * np.pi * np.arange(m) / m, indexing="ij")
@@ -333,25 +325,6 @@ def test_vmap_and_grad():
 
     g = jax.grad(loss)(mesh.vertices)  # no error: the remesh is a constant w.r.t. v
     np.testing.assert_allclose(np.asarray(g), 2 * np.asarray(mesh.vertices), rtol=1e-6)
-
-
-# --------------------------------------------------------------------------- native tests under sanitizers
-
-
-@pytest.mark.slow
-def test_native_core_under_sanitizers(tmp_path):
-    """Builds native/tests with ASan + UBSan and runs them (curvature, invalid input, random ops, remesh and raster kernels)."""
-    if shutil.which("g++") is None:
-        pytest.skip("g++ not available")
-    probe = tmp_path / "probe.cc"
-    probe.write_text("int main() { return 0; }\n")
-    if subprocess.run(["g++", "-fsanitize=address,undefined", str(probe), "-o", str(tmp_path / "probe")], capture_output=True).returncode:
-        pytest.skip("g++ cannot link AddressSanitizer/UBSan here")
-    env = dict(os.environ, TMPDIR=str(tmp_path))
-    res = subprocess.run(["bash", str(REPO / "native/tests/run_sanitizers.sh")], capture_output=True, text=True, env=env, timeout=900)
-    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
-    assert "OK (0 failures)" in res.stdout
-    assert "test_raster: all passed" in res.stdout
 
 
 def test_host_callback_path_matches_the_direct_ffi_call(monkeypatch):

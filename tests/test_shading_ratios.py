@@ -71,11 +71,12 @@ def test_gradient_matches_finite_differences_float64(scene):
         target = jnp.asarray(np.concatenate([target[..., :3] * target[..., 3:], target[..., 3:]], -1), jnp.float64)
         lt = jnp.asarray(lighting, jnp.float64)
 
+        @jax.jit  # one program each for the value and the gradient, not an op-by-op trace
         def f(x):
             m = jg.Mesh(x, mesh.faces, mesh.n_vertices, mesh.n_faces)
             return _cost(m, cams64, target, lt)[0]
 
-        g = jax.grad(f)(mesh.vertices)
+        g = jax.jit(jax.grad(f))(mesh.vertices)
         assert float(jnp.linalg.norm(g)) > 0
         rng = np.random.default_rng(0)
         for _ in range(3):
