@@ -126,6 +126,31 @@ def test_visual_hull_of_torus_contains_it_and_keeps_the_hole(torus_scene):
         jg.visual_hull(img[:3], cams)
 
 
+def test_visual_hull_values_computed_at_once_give_the_same_mesh_as_per_point(torus_scene, monkeypatch):
+    """The hull's level set takes the values at manifold3d's lattice computed at once, in the order
+    it asks for them; the reference is the interpolation of each point as asked (`_point_field`)."""
+    import manifold3d
+
+    from jaxgenus.capture import _hull
+
+    gt, cams, img = torus_scene
+    occ = _hull.hull_occupancy(img, cams, resolution=40)
+    phi = np.asarray(occ.values, np.float64) - 0.5
+    points = _hull._lattice_points(np.asarray(occ.lo), np.asarray(occ.hi), occ.cell)
+    field = _hull._point_field(phi, np.asarray(occ.lo), occ.cell)
+    asked = []
+    manifold3d.Manifold.level_set(lambda x, y, z: asked.append((x, y, z)) or -1.0, [*occ.lo, *occ.hi], occ.cell)
+    np.testing.assert_array_equal(np.array(asked), points)  # the points and their order, exactly
+    ref = np.array([field(*p) for p in points[::97]])
+    np.testing.assert_array_equal(_hull._trilinear(phi, np.asarray(occ.lo), occ.cell, points[::97]), ref)
+    fast = [jg.visual_hull(img, cams, closing=c, occupancy=occ) for c in (0, 2)]
+    monkeypatch.setattr(_hull, "_lattice_field", lambda phi, lo, cell, hi: _hull._point_field(phi, lo, cell))
+    slow = [jg.visual_hull(img, cams, closing=c, occupancy=occ) for c in (0, 2)]
+    for a, b in zip(fast, slow):
+        np.testing.assert_array_equal(a.to_numpy()[0], b.to_numpy()[0])
+        np.testing.assert_array_equal(a.to_numpy()[1], b.to_numpy()[1])
+
+
 def test_auto_start_drills_missing_handles_into_a_lower_genus_hull(torus_scene):
     gt, cams, img = torus_scene
     opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=4000,

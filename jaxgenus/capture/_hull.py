@@ -246,6 +246,88 @@ def hull_occupancy(images, cams: Cameras, *, resolution: int = 64, bounds=None, 
     return HullOccupancy(_hull_occupancy(alpha, cams, grid, region).reshape(shape), lo, cell, hi)
 
 
+def _trilinear(phi: np.ndarray, lo: np.ndarray, cell: float, points: np.ndarray) -> np.ndarray:
+    """The grid `phi` (samples at `lo + cell * i`) interpolated at `points (P, 3)`, -0.5 past its
+    last cells; the arithmetic of `_point_field`, in the same order (the same float64 values)."""
+    f = (points - lo) * (1.0 / cell)
+    i = np.trunc(f).astype(np.int64)
+    n = np.array(phi.shape)
+    out = np.any((i < 0) | (i >= n - 1), axis=1)
+    i = np.where(out[:, None], 0, i)
+    fx, fy, fz = (f - i).T
+    flat = phi.ravel()
+    sy, sx = n[2], n[1] * n[2]
+    b = i[:, 0] * sx + i[:, 1] * sy + i[:, 2]
+    c00 = flat[b] * (1 - fz) + flat[b + 1] * fz
+    c01 = flat[b + sy] * (1 - fz) + flat[b + sy + 1] * fz
+    c10 = flat[b + sx] * (1 - fz) + flat[b + sx + 1] * fz
+    c11 = flat[b + sx + sy] * (1 - fz) + flat[b + sx + sy + 1] * fz
+    return np.where(out, -0.5, (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx)
+
+
+def _point_field(phi: np.ndarray, lo: np.ndarray, cell: float):
+    """`field(x, y, z)`: the trilinear interpolation of `phi`, one Python call per point."""
+    flat = phi.ravel().tolist()
+    nx, ny, nz = (int(s) for s in phi.shape)
+    sy, sx = nz, ny * nz
+    x0, y0, z0 = (float(c) for c in lo)
+    inv = 1.0 / cell
+
+    def field(x, y, z):
+        fx, fy, fz = (x - x0) * inv, (y - y0) * inv, (z - z0) * inv
+        i, j, k = int(fx), int(fy), int(fz)
+        if i < 0 or j < 0 or k < 0 or i >= nx - 1 or j >= ny - 1 or k >= nz - 1:
+            return -0.5
+        fx, fy, fz = fx - i, fy - j, fz - k
+        b = i * sx + j * sy + k
+        c00 = flat[b] * (1 - fz) + flat[b + 1] * fz
+        c01 = flat[b + sy] * (1 - fz) + flat[b + sy + 1] * fz
+        c10 = flat[b + sx] * (1 - fz) + flat[b + sx + 1] * fz
+        c11 = flat[b + sx + sy] * (1 - fz) + flat[b + sx + sy + 1] * fz
+        return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
+
+    return field
+
+
+def _lattice_points(lo: np.ndarray, hi: np.ndarray, cell: float) -> np.ndarray:
+    """The points manifold3d's level set over the box `[lo, hi]` at edge length `cell` evaluates,
+    in the order it asks for them: a body-centred lattice of `floor(extent / cell)` steps a side,
+    for each index (row-major) the cube corner half a step below it, then (inside the box) the
+    lattice point itself."""
+    steps = np.floor((hi - lo) / cell).astype(np.int64)
+    step = (hi - lo) / steps
+    idx = np.stack(np.meshgrid(*(np.arange(s + 2) for s in steps), indexing="ij"), -1).reshape(-1, 3)
+    centre = np.all(idx <= steps, axis=1)
+    at = np.arange(len(idx)) + np.cumsum(centre) - centre  # each corner after the points before it
+    points = np.empty((len(idx) + int(centre.sum()), 3))
+    points[at] = lo + (idx - 0.5) * step
+    points[at[centre] + 1] = lo + idx[centre] * step
+    return points
+
+
+def _lattice_field(phi: np.ndarray, lo: np.ndarray, cell: float, hi: np.ndarray):
+    """`field(x, y, z)` for manifold3d's level set of the trilinear interpolation of `phi` over
+    `[lo, hi]`: the values at every point it will ask for are computed at once (`_lattice_points`,
+    `_trilinear`) and handed out in that order, checked against the point asked (a Python
+    interpolation per point took most of a small fit's time); a point off that order is
+    interpolated as asked, from then on."""
+    points = _lattice_points(lo, hi, cell)
+    values = _trilinear(phi, lo, cell, points).tolist()
+    xs = points[:, 0].tolist()
+    slow = _point_field(phi, lo, cell)
+    state = [0, True]  # the next point's index; still in order
+
+    def field(x, y, z):
+        n = state[0]
+        if state[1] and n < len(xs) and xs[n] == x:
+            state[0] = n + 1
+            return values[n]
+        state[1] = False
+        return slow(x, y, z)
+
+    return field
+
+
 def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0, bounds=None,
                 occupancy: HullOccupancy | None = None, region=None):
     """Watertight `Mesh` of the visual hull of the silhouettes in `images`.
@@ -265,7 +347,7 @@ def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0
     if occupancy is None:
         occupancy = hull_occupancy(images, cams, resolution=resolution, bounds=bounds, region=region)
     occ, lo, cell = np.array(occupancy.values, np.float64), np.asarray(occupancy.lo, np.float64), occupancy.cell
-    shape, hi = occ.shape, np.asarray(occupancy.hi, np.float64)
+    hi = np.asarray(occupancy.hi, np.float64)
     if closing:
         from scipy import ndimage
 
@@ -273,26 +355,7 @@ def visual_hull(images, cams: Cameras, *, resolution: int = 64, closing: int = 0
         occ = ndimage.grey_closing(occ, footprint=ball <= closing + 1e-9)
     occ = occ - 0.5
     occ[0, :, :] = occ[-1, :, :] = occ[:, 0, :] = occ[:, -1, :] = occ[:, :, 0] = occ[:, :, -1] = -0.5
-    flat = occ.ravel().tolist()
-    nx, ny, nz = (int(s) for s in shape)
-    sy, sx = nz, ny * nz
-    x0, y0, z0 = (float(c) for c in lo)
-    inv = 1.0 / cell
-
-    def field(x, y, z):  # trilinear interpolation of the grid; one Python call per point
-        fx, fy, fz = (x - x0) * inv, (y - y0) * inv, (z - z0) * inv
-        i, j, k = int(fx), int(fy), int(fz)
-        if i < 0 or j < 0 or k < 0 or i >= nx - 1 or j >= ny - 1 or k >= nz - 1:
-            return -0.5
-        fx, fy, fz = fx - i, fy - j, fz - k
-        b = i * sx + j * sy + k
-        c00 = flat[b] * (1 - fz) + flat[b + 1] * fz
-        c01 = flat[b + sy] * (1 - fz) + flat[b + sy + 1] * fz
-        c10 = flat[b + sx] * (1 - fz) + flat[b + sx + 1] * fz
-        c11 = flat[b + sx + sy] * (1 - fz) + flat[b + sx + sy + 1] * fz
-        return (c00 * (1 - fy) + c01 * fy) * (1 - fx) + (c10 * (1 - fy) + c11 * fy) * fx
-
-    m = manifold3d.Manifold.level_set(field, [*lo, *hi], cell)
+    m = manifold3d.Manifold.level_set(_lattice_field(occ, lo, cell, hi), [*lo, *hi], cell)
     mesh = m.to_mesh()
     v = np.asarray(mesh.vert_properties, np.float32)[:, :3]
     f = np.asarray(mesh.tri_verts, np.int32)
