@@ -311,10 +311,12 @@ def _lattice_field(phi: np.ndarray, lo: np.ndarray, cell: float, hi: np.ndarray)
     `_trilinear`) and handed out in that order, checked against the point asked (a Python
     interpolation per point took most of a small fit's time); a point off that order is
     interpolated as asked, from then on."""
+    slow = _point_field(phi, lo, cell)
+    if np.any(np.floor((hi - lo) / cell) < 1):  # a box thinner than a cell: no lattice to lay
+        return slow
     points = _lattice_points(lo, hi, cell)
     values = _trilinear(phi, lo, cell, points).tolist()
     xs = points[:, 0].tolist()
-    slow = _point_field(phi, lo, cell)
     state = [0, True]  # the next point's index; still in order
 
     def field(x, y, z):
