@@ -83,7 +83,7 @@ def run_one(args):
     opts = jg.ReconstructOptions.nicolet() if method == "nicolet" else jg.ReconstructOptions()
     fine = spec in args.fine
     opts = opts.fine() if fine else dataclasses.replace(opts, n_cycles=args.cycles)
-    opts = dataclasses.replace(opts, steps_per_cycle=args.steps, one_jit=args.one_jit)
+    opts = opts.replaced(steps_per_cycle=args.steps, one_jit=args.one_jit)
     r = run(targets, cams, genus, gt, opts, args.trace_samples)
     settings = ("fine" if fine else "fine (auto)" if r["fine"] else "default") + ("+one_jit" if args.one_jit else "")
     r.update(shape=spec, true_genus=genus, method=method, settings=settings)

@@ -129,7 +129,7 @@ def _options(args):
     for item in args.option or []:
         name, value = _setting(item)
         change[name] = value
-    if base.remesh is None and "max_faces" in change:  # no remeshing: the start's faces are the budget
+    if not base.remesh and "max_faces" in change:  # no remeshing: the start's faces are the budget
         change["initial_faces"] = min(base.initial_faces, change.pop("max_faces"))
     try:
         return base.updated(**change)
@@ -140,18 +140,13 @@ def _options(args):
 
 
 def _settings_list(opts) -> str:
-    """Every setting `--option` reaches, `name=value` per line, grouped by where it lives."""
+    """Every name `--option` takes, `name=value` per line: the settings, then the plan entries."""
+    from jaxgenus.pipeline._options import ENTRIES
 
-    parts = [("ReconstructOptions", opts), ("OptimizeOptions", opts.optimize), ("LossWeights", opts.optimize.weights),
-             ("RenderSettings", opts.render), ("RemeshOptions", opts.remesh)]
-    lines = []
-    for title, part in parts:
-        if part is None:
-            continue
-        names = [f.name for f in dataclasses.fields(part) if not dataclasses.is_dataclass(getattr(part, f.name))
-                 and f.name not in ("optimize", "remesh", "weights", "render")]
-        lines.append(f"{title}: " + ", ".join(f"{n}={getattr(part, n)!r}" for n in names))
-    return "\n".join(lines)
+    names = [f.name for f in dataclasses.fields(opts) if f.name not in ("entries", "held")]
+    return "\n".join(["settings: " + ", ".join(f"{n}={getattr(opts, n)!r}" for n in names),
+                      "plan entries (the run decides them where not given): "
+                      + ", ".join(f"{n}={getattr(opts, n)!r}" for n in ENTRIES)])
 
 
 def _setting(item: str):
@@ -160,7 +155,7 @@ def _setting(item: str):
 
     name, eq, text = item.partition("=")
     if not eq or not name.strip().isidentifier():
-        raise _InputError(f"--option: expected NAME=VALUE (a setting of ReconstructOptions or of its parts), got {item!r}")
+        raise _InputError(f"--option: expected NAME=VALUE (a setting of ReconstructOptions or a plan entry), got {item!r}")
     try:
         value = ast.literal_eval(text.strip())
     except (ValueError, SyntaxError):
@@ -235,7 +230,7 @@ def _plan_line(opts, targets) -> str:
     """Cycles, steps and the face budget (with the rise photos may get, `detail_faces`)."""
     from jaxgenus.pipeline import TEXTURE_SETTINGS
 
-    more = targets == "photo" and opts.remesh is not None and opts.detail_faces > opts.face_budget
+    more = targets == "photo" and opts.remesh and opts.detail_faces > opts.face_budget
     cycles = f"{opts.n_cycles} cycles"
     five = TEXTURE_SETTINGS["n_cycles"]
     if targets == "photo" and opts.fine_texture and "n_cycles" not in opts.held and opts.n_cycles < five:

@@ -165,7 +165,7 @@ def test_large_silhouettes_and_their_downsampled_copies_give_the_same_frame_and_
     cams = jg.sphere_cameras(8, radius=3.0, fov_deg=40.0, resolution=512)
     alpha = (np.asarray(jg.render_targets(jg.builtin_scene("torus"), cams))[..., 3] >= 0.5).astype(np.float32)
     assert hull_factor(alpha, (48, 64)) == 2 and hull_factor(alpha[:, ::2, ::2], (48, 64)) == 1
-    opts = jg.ReconstructOptions(hull_resolutions=(64,))
+    opts = jg.ReconstructOptions()
     full = prepare(alpha, cams, None, None, opts, lambda line: None)
     half = prepare(*downsampled(alpha, cams, 2), None, None, opts, lambda line: None)
     np.testing.assert_array_equal(full.frame.centre, half.frame.centre)

@@ -58,16 +58,16 @@ def test_cli_settings_map_onto_the_nested_options_and_hold_as_given():
         return _options(argparse.Namespace(**{**base, **change}))
 
     opts, default = options(), jg.ReconstructOptions()
-    assert opts.optimize.learning_rate == 0.05 and opts.remesh.adaptive and opts.optimize.render.sigma == 0.03
-    assert opts.remesh.max_faces == 20000 and opts.optimize.crop == 64 and opts.downsample == 2
+    assert opts.optimize.learning_rate == 0.05 and opts.remesh_options.adaptive and opts.optimize.render.sigma == 0.03
+    assert opts.remesh_options.max_faces == 20000 and opts.optimize.crop == 64 and opts.downsample == 2
     assert {"max_faces", "adaptive", "sigma"} <= opts.held  # held as given: no rise from the images
     assert "max_faces" not in options(max_faces=None).held
     assert options(max_faces=1000).initial_faces == 1000  # the start fits in the budget given
     assert opts.lighting == "directional" and opts.optimize.adam_quantile == jg.OptimizeOptions().adam_quantile
     assert opts.optimize.weights.albedo_edges == 1.0 and opts.optimize.render.shading == "flat"
-    edges = options(option=["albedo_edges=0.0", "consistency=0.5", "shading=smooth", "shading_ratio=2.5"])
+    edges = options(option=["albedo_edges=0.0", "consistency=0.5", "shading_ratio=2.5"])
     assert edges.optimize.weights.albedo_edges == 0.0 and edges.optimize.weights.consistency == 0.5
-    assert edges.optimize.render.shading == "smooth" and edges.optimize.weights.shading_ratio == 2.5
+    assert edges.optimize.weights.shading_ratio == 2.5
     assert "shading_ratio" in edges.held  # the shading ratio named holds, also for fine textures
     assert opts.optimize.weights.stereo == 1.0 and opts.stereo_carve == default.stereo_carve
     no_stereo = options(option=["stereo=0"])
@@ -81,10 +81,10 @@ def test_cli_settings_map_onto_the_nested_options_and_hold_as_given():
     assert _plan_line(four, "photo").startswith("4 cycles x 150")
     assert "polish_cycles" in options(option=["polish_cycles=0"]).held  # none, also for textures
     nicolet = options(preset="nicolet", option=None, max_faces=None)
-    assert nicolet.remesh is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000
+    assert not nicolet.remesh and nicolet.remesh_options is None and nicolet.optimize.adam_quantile == 1.0 and nicolet.initial_faces == 2000
     assert options(preset="nicolet", option=None, max_faces=1000).initial_faces == 1000
     fine = options(preset="nicolet-fine", option=None, max_faces=None)
-    assert fine.remesh is None and fine.optimize.render.sigma == 0.03 and fine.n_cycles == 5
+    assert not fine.remesh and fine.optimize.render.sigma == 0.03 and fine.n_cycles == 5
     assert "n_cycles=4" in _settings_list(default) and "sigma=" in _settings_list(default)
     assert _mask_source("masks/") == ("masks/", None, 0.1) and _mask_source(None) == (None, None, 0.1)
     assert _mask_source("white") == (None, "white", 0.1) and _mask_source("black:0.25") == (None, "black", 0.25)

@@ -1,4 +1,4 @@
-"""`ReconstructOptions` composes the options of its parts: one field, one default, one place."""
+"""`ReconstructOptions`: the settings a person holds, the plan entries, the parts derived from them."""
 
 import dataclasses
 
@@ -11,30 +11,53 @@ def test_updated_routes_each_name_to_the_part_that_holds_it():
     base = jg.ReconstructOptions()
     o = base.updated(learning_rate=0.05, sigma=0.03, carve=2.0, adaptive=True, max_faces=30000, n_cycles=6)
     assert o.optimize.learning_rate == 0.05 and o.optimize.render.sigma == 0.03 and o.optimize.weights.carve == 2.0
-    assert o.remesh.adaptive and o.remesh.max_faces == 30000 and o.face_budget == 30000 and o.n_cycles == 6
-    assert o.optimize.render.gamma == jg.RenderSettings().gamma and o.remesh.iterations == base.remesh.iterations
+    assert o.remesh_options.adaptive and o.remesh_options.max_faces == 30000 and o.face_budget == 30000
+    assert o.n_cycles == 6 and o.carve == 2.0 and o.adaptive  # plan entries read as attributes
+    assert o.optimize.render.gamma == jg.RenderSettings().gamma and o.remesh_options.iterations == 3
     assert base == jg.ReconstructOptions()  # a copy: the original is unchanged
+    assert jg.ReconstructOptions(carve=2.0, n_cycles=6) == base.updated(n_cycles=6, carve=2.0)  # entries by name too
     with pytest.raises(ValueError, match="no setting named 'sigmaa'"):
         base.updated(sigmaa=1.0)
+    with pytest.raises(ValueError, match="no setting named 'eps'"):  # a constant of the optimizer, not a setting
+        jg.ReconstructOptions(eps=1e-6)
     with pytest.raises(ValueError, match="without remeshing"):
         jg.ReconstructOptions.nicolet().updated(adaptive=True)
     with pytest.raises(ValueError, match="render settings: sigma"):
         base.updated(sigma=-1.0)
 
 
+def test_at_most_thirty_settings_and_a_short_repr():
+    """What a person holds: at most 30 fields reachable from `ReconstructOptions()` (nested settings
+    counted by their own fields), the plan entries besides them, and a repr of what differs."""
+    def leaves(x):
+        return sum(leaves(getattr(x, f.name)) if dataclasses.is_dataclass(getattr(x, f.name)) else 1
+                   for f in dataclasses.fields(x))
+
+    assert leaves(jg.ReconstructOptions()) <= 30
+    from jaxgenus.pipeline._options import ENTRIES, setting_names
+    fields = {f.name for f in dataclasses.fields(jg.ReconstructOptions)}
+    assert set(ENTRIES) <= setting_names() and not set(ENTRIES) & fields
+    assert repr(jg.ReconstructOptions()) == "ReconstructOptions()"
+    assert repr(jg.ReconstructOptions(n_cycles=2, polish_cycles=1)) == "ReconstructOptions(n_cycles=2, polish_cycles=1)"
+    given = jg.ReconstructOptions(n_cycles=4, polish_cycles=0)  # defaults given by name are held
+    assert given == jg.ReconstructOptions().updated(n_cycles=4, polish_cycles=0) and given.held == {"n_cycles",
+                                                                                                  "polish_cycles"}
+
+
 def test_one_default_per_setting_and_the_presets():
     o = jg.ReconstructOptions()
-    assert o.optimize == jg.OptimizeOptions() and o.render == jg.RenderSettings()
+    assert o.optimize == jg.OptimizeOptions(render=jg.RenderSettings()) and o.render == jg.RenderSettings()
     n = jg.ReconstructOptions.nicolet()
-    assert n.start == "sphere" and n.remesh is None and n.optimize.adam_quantile == 1.0 and n.edge_lengths() == []
+    assert n.start == "sphere" and not n.remesh and n.remesh_options is None and n.optimize.adam_quantile == 1.0
+    assert n.edge_lengths() == [] and n.face_budget == n.initial_faces
     f = o.fine()
     assert f.optimize.render.sigma == 0.03 and f.optimize.average == 0.95 and f.n_cycles == 5 and f.face_budget == 20000
     assert f.fine() == f  # idempotent
     assert o.for_refit("normals").optimize.weights.carve == o.refit_carve and o.for_refit("photo") is o
-    with pytest.raises(ValueError, match="remesh.max_faces must be set"):
-        jg.ReconstructOptions(remesh=jg.RemeshOptions())
-    with pytest.raises(ValueError, match="options.optimize"):
-        jg.ReconstructOptions(optimize=dataclasses.asdict(jg.OptimizeOptions()))
+    with pytest.raises(ValueError, match="options.max_faces must be >= options.initial_faces"):
+        jg.ReconstructOptions(max_faces=100)
+    with pytest.raises(ValueError, match="options.remesh"):
+        jg.ReconstructOptions(remesh=None)
 
 
 def test_photos_that_resolve_more_detail_get_a_larger_face_budget():

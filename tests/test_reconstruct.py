@@ -179,12 +179,10 @@ def test_auto_start_falls_back_to_the_primitive_when_the_hull_genus_is_too_high(
 
 def test_refit_starts_from_the_previous_result(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=40, initial_faces=800, max_faces=3000, start="primitive",
-                                 weights=jg.LossWeights(containment=0.1))
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=40, initial_faces=800, max_faces=3000, start="primitive")
     first = jg.reconstruct(img, cams, 1, options=opts)
-    assert first.history["containment"][0] > 0  # the primitive in the hull's bounds pokes out of the silhouettes
-    lines, rows = [], []
-    rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=1), log=lines.append,
+    lines, rows = [], []  # a plain refit (a carving one fits this torus worse and is dropped: tests below)
+    rec = jg.reconstruct(img, cams, 1, options=opts.replaced(refits=1, refit_carve=0.0), log=lines.append,
                          callback=lambda row, mesh: rows.append((row["fit"], row["fits"], row["cycle"], row["n_cycles"])))
     assert rec.genus == 1 and rec.history["start"] == "primitive+refit"
     # the refit starts from the first fit, not from the primitive: its start already matches the silhouettes
@@ -192,9 +190,6 @@ def test_refit_starts_from_the_previous_result(torus_scene):
     assert start_first < 0.85 and start_refit > 0.95 and start_refit >= np.mean(first.history["silhouette_iou"]) - 0.02
     assert rows == [(0, 2, 0, 2), (0, 2, 1, 2), (1, 2, 0, 2), (1, 2, 1, 2)] and rec.history["cycles"][-1]["fit"] == 1
     assert any(line.startswith("refit 1/1: start: primitive+refit") for line in lines)
-    assert np.all(np.isfinite(rec.history["containment"])) and np.all(rec.history["containment"] >= 0)
-    plain = jg.reconstruct(img, cams, 1, options=opts.updated(weights=jg.LossWeights()))
-    assert np.all(plain.history["containment"] == 0)  # off by default: not computed
     assert rec.history["seconds"] > rec.history["cycles"][-1]["elapsed"]  # the first fit's time is counted
     for bad in (-1, 1.5, True):
         with pytest.raises(ValueError, match="refits"):
@@ -220,7 +215,7 @@ def test_a_refit_that_fits_worse_is_dropped(torus_scene, monkeypatch):
     monkeypatch.setattr(R, "refit_start", shrunken)
     for carve in (0.0, 1.0):  # a carving refit (the default for normal maps) is retried once without carving
         lines, refit_seconds = [], []
-        rec = jg.reconstruct(img, cams, 1, options=dataclasses.replace(opts, refits=2, refit_carve=carve),
+        rec = jg.reconstruct(img, cams, 1, options=opts.replaced(refits=2, refit_carve=carve),
                              log=lines.append,
                              callback=lambda row, m: refit_seconds.append(row["seconds"]) if row["fit"] else None)
         assert rec.history["start"] == first.history["start"] and "refit" not in rec.history["start"]

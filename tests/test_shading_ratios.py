@@ -149,7 +149,7 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
         fitted = fine_texture(options, "photo", level, len(cams), lines.append)
         w = fitted.optimize.weights
         polish.append(fitted.polish_cycles)
-        adaptive.append(fitted.remesh.adaptive)
+        adaptive.append(fitted.remesh_options.adaptive)
         cycles.append(fitted.n_cycles)
         return w.alpha, w.shading_ratio, w.consistency_blur, w.photo, lines
 
@@ -160,7 +160,7 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
                                                          "photo=1.0", "polish_cycles=2",
                                                          "adaptive=True", "n_cycles=5")), said
     assert polish[-1] == t["polish_cycles"] == 2 and base.polish_cycles == 0
-    assert adaptive[-1] and not base.remesh.adaptive
+    assert adaptive[-1] and not base.remesh_options.adaptive
     assert cycles[-1] == t["n_cycles"] == 5 and base.n_cycles == 4
     # photos that resolve 4x the budget's faces or more (a DTU-class capture) keep the cycles as set
     detailed = fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget)

@@ -95,7 +95,7 @@ class LossWeights:
             for a fine texture").
         consistency_colour: not a weight of a term: 1 compares R, G and B in the `consistency` term
             (one NCC per window from the three channels' covariances and variances), 0 (default) the
-            grey level. `reconstruct`'s closing polish uses 1 (`ReconstructOptions.polish_steps`).
+            grey level. `reconstruct`'s closing polish uses 1 (`ReconstructOptions.polish_cycles`).
     """
 
     def __repr__(self) -> str:

@@ -18,13 +18,14 @@ from jaxgenus.pipeline._history import (
     History,
     Reconstruction,
 )
-from jaxgenus.pipeline._options import ReconstructOptions
+from jaxgenus.pipeline._options import ENTRIES, ReconstructOptions
 from jaxgenus.pipeline._reconstruct import genus_estimate, reconstruct
 from jaxgenus.pipeline._scenes import SCENES, builtin_scene, render_targets
 from jaxgenus.pipeline._setup import TEXTURE_SETTINGS
 
 __all__ = [
     "CycleRecord",
+    "ENTRIES",
     "GenusEstimate",
     "GenusEvidence",
     "HandleCandidate",

@@ -61,7 +61,6 @@ class Level(NamedTuple):
         cameras: the level's cameras (scaled with the images).
         targets: `(N, h, w, C)` targets at that level.
         crop: > 0: the cycle fits random `crop x crop` windows of them.
-        outside: the targets' outside-distance maps (containment), or None.
         factor: the images were downsampled by this factor.
         views, window, pixels: what one step renders (`jaxgenus.optim.step_views`): `views`
             views, whole (`window` 0) or through `window x window` windows; `pixels` in all.
@@ -73,7 +72,6 @@ class Level(NamedTuple):
     cameras: Cameras
     targets: jax.Array
     crop: int
-    outside: jax.Array | None
     factor: int
     views: int = 0
     window: int = 0
@@ -151,15 +149,14 @@ def _overflow(state, cams, opt: OptimizeOptions):
     return info.n_overflow
 
 
-def cycle(state, cams, targets, outside, valid, neighbours, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
+def cycle(state, cams, targets, valid, neighbours, lr_scale, length, *, n_steps: int, opt: OptimizeOptions,
           remesh_options: RemeshOptions | None):
     """One cycle in one program (the scan of `run_one_jit`): `n_steps` optimizer steps at `lr_scale`
-    (`outside`: the targets' outside-distance maps, or None), then a remesh to `length` (world
-    units) if `length > 0` and `remesh_options`; the host clock is read in the program."""
+    then a remesh to `length` (world units) if `length > 0` and `remesh_options`; the host clock is read in the program."""
     clock = jax.ShapeDtypeStruct((), jnp.int32)
     t_start = io_callback(_clock_us, clock, state.mesh.vertices[0, 0], ordered=True)
     lr_scale = lr_scale * (1.0 + 0.0 * t_start.astype(lr_scale.dtype))  # the optimizer runs after t_start
-    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid, neighbours)
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, None, valid, neighbours)
     overflow = _overflow(state, cams, opt)
     t_opt = io_callback(_clock_us, clock, record.loss[-1], ordered=True)
     status = jnp.int32(-1)
@@ -176,10 +173,9 @@ def cycle(state, cams, targets, outside, valid, neighbours, lr_scale, length, *,
 
 
 @jax.jit(static_argnames=("n_steps", "opt"), donate_argnames=("state",))
-def optimizer_block(state, cams, targets, outside, valid, neighbours, lr_scale, *, n_steps: int,
-                    opt: OptimizeOptions):
+def optimizer_block(state, cams, targets, valid, neighbours, lr_scale, *, n_steps: int, opt: OptimizeOptions):
     """A cycle's `n_steps` optimizer steps and the faces drawn incompletely after them."""
-    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, outside, valid, neighbours)
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, None, valid, neighbours)
     return state, record, _overflow(state, cams, opt)
 
 
@@ -194,7 +190,7 @@ def _timed_cycle(state, level: Level, lr_scale: float, length: float, *, n_steps
     `compiled`: the new executables of each (`"cycle"`, `"remesh"`)."""
     with count_compilations() as counts:
         t_start = _clock_us(None)
-        state, record, overflow = optimizer_block(state, level.cameras, level.targets, level.outside, level.valid,
+        state, record, overflow = optimizer_block(state, level.cameras, level.targets, level.valid,
                                                   level.neighbours, jnp.float32(lr_scale), n_steps=n_steps, opt=opt)
         record, overflow = jax.device_get((record, overflow))
         t_opt = _clock_us(None)
@@ -211,9 +207,9 @@ _STATIC = ("n_steps", "opt", "remesh_options")
 
 
 @jax.jit(static_argnames=_STATIC, donate_argnames=("state",))
-def _all_cycles(state, cams, targets, outside, valid, neighbours, lr_scales, lengths, *, n_steps, opt, remesh_options):
+def _all_cycles(state, cams, targets, valid, neighbours, lr_scales, lengths, *, n_steps, opt, remesh_options):
     def body(s, xs):
-        return cycle(s, cams, targets, outside, valid, neighbours, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
+        return cycle(s, cams, targets, valid, neighbours, *xs, n_steps=n_steps, opt=opt, remesh_options=remesh_options)
 
     return jax.lax.scan(body, state, (lr_scales, lengths))
 
@@ -297,7 +293,7 @@ def run_per_cycle(state, levels: list[Level], world_lengths, options: Reconstruc
         plan = _cycle_plan(state.mesh, level.cameras, options)
         plans.add(plan)
         state, out, counts = _timed_cycle(state, level, options.lr_decay**c, float(world_lengths[c]), n_steps=n,
-                                          opt=_optimize_options(options, plan, level), remesh_options=options.remesh)
+                                          opt=_optimize_options(options, plan, level), remesh_options=options.remesh_options)
         now = time.perf_counter()
         steps.append(_host_steps(out.record, n, now - t0 - waited))
         row = _row(c, out, remeshed=world_lengths[c] > 0, loss=steps[-1]["loss"][-1],
@@ -333,10 +329,10 @@ def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructO
     lr_scales = jnp.asarray([options.lr_decay**c for c in range(n)], jnp.float32)
     with count_compilations() as counts:
         state, out = _all_cycles(
-            state, level.cameras, level.targets, level.outside, level.valid, level.neighbours, lr_scales,
+            state, level.cameras, level.targets, level.valid, level.neighbours, lr_scales,
             jnp.asarray(world_lengths, jnp.float32),
             n_steps=options.steps_per_cycle, opt=_optimize_options(options, plan, level),
-            remesh_options=options.remesh,
+            remesh_options=options.remesh_options,
         )
         out = jax.device_get(out)
     wall = time.perf_counter() - t0
@@ -363,7 +359,7 @@ def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructO
 def polish_count(options: ReconstructOptions, level: Level) -> int:
     """The polish cycles a fit whose finest level is `level` runs: `options.polish_cycles` when it
     fits photos with photo-consistency (neighbours given: one device), else 0."""
-    return options.polish_cycles if level.neighbours is not None and options.optimize.weights.consistency > 0 else 0
+    return options.polish_cycles if level.neighbours is not None and options.consistency > 0 else 0
 
 
 #: The polish's large-steps `lambda_`: less smoothing than the cycles' (19), so photo-consistency can

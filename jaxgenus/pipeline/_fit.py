@@ -69,7 +69,7 @@ def estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
 
 def _device_warnings(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[str]:
     """Photo-consistency (on by default for photos) while the views are split over devices, where it is not computed."""
-    if setup.targets.kind != "photo" or options.optimize.weights.consistency <= 0 or levels[0].valid is None:
+    if setup.targets.kind != "photo" or options.consistency <= 0 or levels[0].valid is None:
         return []
     n = int(levels[0].valid.sharding.mesh.size)
     return [f"photo-consistency was not used: the views were split over {n} devices, where the term is not "

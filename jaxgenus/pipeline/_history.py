@@ -145,7 +145,8 @@ class Plan(_Readable):
                 f"renders {self.views_per_step} views, {self.pixels_per_step / 1e6:.2f} Mpixel a step; images "
                 f"{self.image_bytes / 2**20:.0f} MiB with their levels",
                 f"plan: settings {shown}", *[f"plan: chose {c}" for c in self.choices],
-                "plan: each setting holds when given by name (ReconstructOptions.updated, CLI --option NAME=VALUE)"]
+                "plan: each setting and plan entry holds when given by name (ReconstructOptions.updated, CLI --option "
+                "NAME=VALUE)"]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -1,21 +1,64 @@
-"""`ReconstructOptions`: every setting of `reconstruct`, validated, with its presets.
+"""`ReconstructOptions`: the settings of `reconstruct`, and the plan entries a run decides itself.
 
-The options compose: the optimizer's settings are an `OptimizeOptions` (which holds the
-`LossWeights` and the `RenderSettings`), the remesher's a `RemeshOptions`; this class
-adds only what the pipeline itself decides (schedule, start, resolution, verdict, refits).
-`updated(name=value, ...)` changes any of them by its own name.
+A person holds the 24 settings below, grouped by the stage that uses them. The run's plan
+(`pipeline._schedule.planned`) decides a few more from the images (`ENTRIES`: the face budget's
+start, the texture settings, the stages after the fit, ...); each of those can be given by name
+too, and is then held. Everything else is a constant of the stage that uses it (the defaults of
+`OptimizeOptions`, `LossWeights`, `RenderSettings` and `RemeshOptions`, with their reasons there).
+The optimizer's and the remesher's settings are derived: `options.optimize`, `options.remesh_options`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Any
 
-from jaxgenus.geometry import settings_repr, RemeshOptions
+from jaxgenus.geometry import RemeshOptions
 from jaxgenus.optim import LossWeights, OptimizeOptions, resolution_factors
 from jaxgenus.rendering import RenderSettings
 
-__all__ = ["ReconstructOptions"]
+__all__ = ["ENTRIES", "ReconstructOptions"]
+
+#: The plan entries: settings a run decides itself where they are not given (`planned`, `prepare`,
+#: `fine()`), each with its default. Any of them given by name (`ReconstructOptions(name=...)`,
+#: `updated`, CLI `--option NAME=VALUE`) is held: no rule of the run changes it.
+ENTRIES: dict[str, Any] = {
+    # the start and the schedule (fine() changes the last four)
+    "initial_faces": 2000,  # faces of the starting primitive
+    "initial_edge_length": 2.0,  # pixels: the first remesh's target (geometric to the last)
+    "final_edge_length": 1.4,  # pixels: the last remesh's target
+    "lr_decay": 0.5,  # the step is learning_rate * lr_decay ** cycle
+    "average": OptimizeOptions.average,  # iterate averaging of a block (fine(): 0.95)
+    "adam_quantile": OptimizeOptions.adam_quantile,  # uniform Adam's quantile (nicolet(): 1, the max)
+    "fine_below": 3.0,  # pixels: a visual hull thinner than this at the first level runs fine() (0: never)
+    "one_jit": False,  # all cycles as one compiled scan (one compilation; callbacks after the run)
+    "crop": OptimizeOptions.crop,  # native cycles of the schedule fit crop x crop windows (0: whole images)
+    "max_pixels": OptimizeOptions.max_pixels,  # the most pixels one step renders
+    # photos: the face budget, the texture settings, the stereo start
+    "detail_faces": 40000,  # the most faces the photos' detail budget may raise max_faces to
+    "fine_texture": True,  # photos of a fine texture get pipeline._setup.TEXTURE_SETTINGS
+    "shading_ratio": LossWeights.shading_ratio,  # the albedo-free shading ratios (fine texture: 6)
+    "consistency_blur": LossWeights.consistency_blur,  # photo-consistency's blur (fine texture: 0)
+    "polish_cycles": 0,  # cycles without remeshing after the fit, colour terms only (fine texture: 2)
+    "adaptive": False,  # curvature-adaptive remeshing (fine texture: on)
+    "stereo": LossWeights.stereo,  # the plane-sweep depths' term of photo fits
+    "stereo_carve": 2.0,  # cells: the stereo depths carve the visual hull start (0: off)
+    "albedo_edges": LossWeights.albedo_edges,  # the albedo's smoothness stops at the photos' edges
+    # normal maps: refits
+    "refit_carve": 1.0,  # carving (LossWeights.carve) in refits of normal maps (0: off)
+    "carve": LossWeights.carve,  # carving in every fit
+    # the stages after the fit
+    "fill_unseen": True,  # photos: the surface no camera sees onto the membrane the seen surface spans
+    "fit_outline": True,  # the outline onto the masks at the images' own size
+    "fit_photo_depth": True,  # photos: the depth at the images' own size (plane sweep along the normals)
+    "depth_edge_px": 8.0,  # pixels: subdivide before those two while the median edge is longer (0: no)
+}
+_WEIGHT_ENTRIES = ("shading_ratio", "consistency_blur", "stereo", "albedo_edges", "carve")
+_OPTIMIZE_ENTRIES = ("average", "adam_quantile", "crop", "max_pixels")
+#: Remeshes between cycles run this many split/collapse/flip/smooth rounds (3 of RemeshOptions' 5:
+#: the optimizer moves the mesh between two remeshes by a fraction of an edge).
+REMESH_ITERATIONS = 3
 
 
 def _positive_int(name, v, minimum=1):
@@ -35,223 +78,190 @@ def _choice(name, v, allowed):
         raise ValueError(f"options.{name} must be one of {', '.join(map(repr, allowed))}, got {v!r}")
 
 
+def _flag(name, v):
+    if not isinstance(v, bool):
+        raise ValueError(f"options.{name} must be True or False, got {v!r}")
+
+
+def _same(a, b) -> bool:
+    try:
+        return bool(a == b)
+    except (TypeError, ValueError):  # arrays compare element-wise
+        return False
+
+
 @dataclasses.dataclass(frozen=True, repr=False)
 class ReconstructOptions:
-    """Settings of `reconstruct` (immutable). Edge lengths are in pixels (see below).
+    """Settings of `reconstruct` (immutable), by the stage that uses them. Lengths in pixels.
 
-    Attributes:
+    The fit:
         n_cycles: optimize/remesh cycles; the last one is not followed by a remesh.
         steps_per_cycle: optimizer steps per cycle.
-        lr_decay: the step is `optimize.learning_rate * lr_decay ** cycle` (coarse to fine;
-            no recompile).
-        optimize: `OptimizeOptions` of every optimizer block: step size, smoothing
-            (`lambda_`), uniform Adam's quantile, iterate averaging, views per step,
-            `LossWeights`, `RenderSettings` (`sigma`, `gamma`; None: the renderer's defaults),
-            albedo and lighting steps of photo fits, and `crop` (the native cycles of the
-            resolution schedule fit random `crop x crop` windows centred in the
-            silhouettes; 0: whole images).
-        remesh: `RemeshOptions` of the remeshes between cycles (`adaptive`, `iterations`,
-            `max_faces`: the face budget, which picks the run's capacity bucket; the remeshes
-            between cycles may use that bucket whole); None keeps the connectivity (Nicolet's
-            baseline; the budget is then `initial_faces`). `target_edge_length` is set by the
-            schedule below.
-        initial_faces: face count of the starting primitive.
-        initial_edge_length, final_edge_length: remesh targets of the first and the last
-            remesh (geometric in between: coarse to fine), in pixels: one pixel is the
-            median over the cameras of the world-space footprint of a pixel at the
-            visual hull's centre, so the mesh is as fine as the images resolve.
-        start: `"auto"` (the silhouettes' visual hull when its largest component has the
-            requested genus at one of `hull_resolutions`, possibly after closing
-            thin spurious tunnels; when it has fewer handles, the missing ones are
-            added as small tunnels under its surface; else the genus-g primitive),
-            `"primitive"` (always the genus-g primitive) or `"sphere"` (genus 0).
-        hull_resolutions: grid sizes tried, in order, for the visual-hull start.
-        fine_below: thin-structure switch: when the silhouettes' visual hull (grid
-            `hull_resolutions[0]`, largest piece) is thinner than this many pixels of the
-            level the first cycles fit, as `2 * volume / area` (a slab's thickness, a
-            tube's radius), `reconstruct` runs with `self.fine()` instead
-            (`history["fine"]`, `Reconstruction.options`; the settings in `held` keep their values).
-            0 turns it off.
-        min_view_iou: the verdict's threshold: a run whose silhouette IoU (result against
-            target, both at alpha 0.5) is under this in any view is not ok.
-        outlier_gap: the verdict's test of views that disagree with the rest: a view
-            whose IoU is this far under the median of the views makes the run not ok.
-        max_photo_error: photo targets: the verdict fails when the median over the views
-            of the mean absolute RGB error (result rendered with its albedo and
-            lighting, against the photos) is above this.
-        downsample: fit copies of the images area-averaged over `downsample x downsample`
-            blocks, with the cameras scaled to match (1: the images as they are): speed over
-            detail; the verdict then judges those copies.
-        coarse_resolution, native_cycles: the resolution schedule for images of any
-            size. When the images' longer side is at least 1.5 x `coarse_resolution`,
-            all but the last `native_cycles` cycles fit copies area-averaged by a power
-            of two to about `coarse_resolution` pixels (edge lengths in those pixels),
-            and the last ones fit the images at their own resolution.
-            `coarse_resolution = 0` fits every cycle at full size.
-        devices: the devices (of the default backend; every process's when processes were joined by
-            `jax.distributed`) the views are split over: None (the default) all of them, 1 one. With several, each device renders and differentiates its own
-            views every step (`jaxgenus.optim._devices`), the mesh and optimizer state replicated
-            (`history["devices"]`). At most one device per view.
-        one_jit: run all cycles (optimizer blocks and FFI remeshes) as one jit-compiled
-            `lax.scan` with one rasterizer plan sized for the final face count, instead of
-            one compiled block per cycle driven from Python. One compilation per run;
-            `callback` is then called after the run, once per cycle.
-        lighting: photo targets: the lighting model, `"sh"` (spherical harmonics of
-            order <= 4: any smooth distant light) or `"directional"` (one lamp plus
-            ambient, exact); `jaxgenus.irradiance`, docs/photometric.md.
-        hidden_handles: handles the visual hull lacks (holes no silhouette shows):
-            `"images"` (normal targets) first fits the hull's genus, then opens holes
-            where that fit's normals disagree with the targets and the image loss drops
-            (`jaxgenus.open_handles`), drilling only what the images do not show; `"drill"`
-            drills them all as small tunnels at spread-out sites.
-        refits: fits after the first, each started from the previous result (remeshed to
-            the first edge length, the optimizer and its step size reset) with the same
-            settings; None (the default): `refit_count`, up to two for normal maps
-            fitted through the resolution schedule, else none; the second only when the
-            first lowered the mean normal error by 3 % or more. A refit that fits the
-            images worse than its start is dropped (a warning says so). Refits carve
-            concavities that few cameras see (docs/reconstruction.md).
-        refit_carve: `LossWeights.carve` in refits of normal maps (when
-            `optimize.weights.carve` is 0): the visible surface moves away from the camera
-            where its normal is more than 37 degrees from the image's
-            (`jaxgenus.carving_term`). A carving refit that fits the images worse is
-            dropped and the next refit runs without carving. 0 turns it off.
-        detail_faces: photo targets fitted with photo-consistency: when the photos resolve 4 x
-            `max_faces` or more (faces with edges of 4 px on the visual hull), the face budget
-            rises towards that, to at most this many (time and memory grow with it). 0, or any
-            value not above `max_faces`, holds the budget at `max_faces`.
-        fine_texture: photo targets whose albedo edges (`jaxgenus.optim.albedo_edges`) cover
-            `FINE_TEXTURE` (30 %) of the masks or more in the finest images a fit sees (a texture
-            finer than the mesh's albedo holds) get `pipeline._setup.TEXTURE_SETTINGS` (shading ratios
-            on, the silhouettes weighed more, the photometric term less, photo-consistency unblurred,
-            two polish cycles, five cycles, adaptive remeshing) for each of those settings not in
-            `held`, and a face budget lowered to what they resolve unless `max_faces` is held.
-            False: never.
-        held: the names of the settings given by name (`updated`, the CLI's `--option`):
-            no automatic choice of the run changes them (the fine-texture settings, the photos'
-            detail budget, the thin-structure switch to `fine()`).
-        polish_cycles: photo targets fitted with photo-consistency (one device): after the cycles,
-            this many more cycles at the finest level, without remeshing, on the silhouettes
-            and colour photo-consistency only, with fresh moments, less smoothing and iterate
-            averaging (`pipeline._cycles.POLISH_LAMBDA`, `POLISH_AVERAGE`). 0 (default): none, but
-            see `fine_texture`.
-        subdivide: a result whose median edge is longer than `SUBDIVIDE_EDGE_PX` (2) pixels at the
-            images' own size goes through one `phong_subdivision` (4x the faces, the albedo carried):
-            flat faces are chords that cut under curved parts by about k h^2 / 8, and the new
-            vertices sit on the smooth surface through the fitted ones. A finer result is kept as
-            fitted (the images hold no finer detail). The verdict judges the mesh returned. False:
-            never (`nicolet()` sets it).
-        fill_unseen: photo targets: before the subdivision, the vertices no camera sees (though
-            some holds them in frame) move onto the membrane the seen surface spans around them
-            (`jaxgenus.geometry.fill_unseen`). False: off.
-        fit_outline: when the finest level fitted is coarser than the images, the result's outline
-            moves onto the masks at their own size (`jaxgenus.geometry.fit_outline`). False: off.
-        fit_photo_depth: photo targets, when the finest level fitted is coarser than the images:
-            after the outline, the surface moves along its normals to where the photos at their
-            own size agree (`jaxgenus.geometry.fit_photo_depth`); the outline stays. False: off.
-        depth_edge_px: before the outline and the sweep, more Phong subdivisions while the median
-            edge at the images' own size is longer than this many pixels (at most 2^20 faces): the
-            sweep measures a vertex's depth from a 13-pixel square. 0: no more subdivision.
+        max_faces: the face budget (it picks the run's capacity bucket). Photos that resolve
+            more detail may get more (`detail_faces`), photos of a fine texture less, unless given.
+        remesh: remesh between cycles, coarse to fine, to edges of `initial_edge_length` to
+            `final_edge_length` pixels (one pixel: the median footprint over the cameras of a pixel
+            at the visual hull's centre). False keeps the start's connectivity (Nicolet's baseline;
+            the budget is then `initial_faces`).
+        learning_rate, lambda_: uniform Adam's step size and the large-steps smoothing
+            (`OptimizeOptions`).
+        views_per_step: views sampled per step (None: all).
+        sigma: the soft rasterizer's edge width in pixels (`RenderSettings.sigma`).
 
-    What each default bought is in docs/results.md.
+    The objective (`LossWeights`: 0 turns a term off):
+        alpha, normal, photo, consistency: the silhouettes, the normal maps, the photos through
+            shading, the photos' multi-view consistency.
+        bilaplacian, inversion: the paper's smoothness and triangle-inversion terms.
+
+    The start and the genus:
+        start: `"auto"` (the silhouettes' visual hull where it has the genus, its missing handles
+            opened where the images show holes or drilled; else the genus-g primitive),
+            `"primitive"` or `"sphere"` (genus 0).
+        hidden_handles: handles no silhouette shows: `"images"` (normal maps: fit at the hull's
+            genus, cut where the normals disagree the way a hole does and the loss drops) or
+            `"drill"` (small tunnels at spread-out sites).
+
+    The images:
+        downsample: fit copies area-averaged over `downsample x downsample` blocks (cameras scaled).
+        coarse_resolution: images whose longer side is 1.5 x this or more are fitted through a
+            pyramid (copies of about this size first, the images' own size last; 0: full size only).
+        lighting: photos: `"sh"` (spherical harmonics of order <= 4) or `"directional"`.
+
+    The verdict:
+        min_view_iou: a run whose silhouette IoU is under this in any view is not ok.
+        max_photo_error: photos: not ok when the median view's mean absolute RGB error is above this.
+
+    The result:
+        subdivide: a result whose median edge is longer than 2 pixels at the images' own size goes
+            through one Phong subdivision (the verdict judges the mesh written).
+
+    The run:
+        devices: the devices the views are split over (None: all of the default backend's, with
+            processes joined by `jax.distributed` every process's; 1: one).
+        refits: fits after the first, each from the previous result (None: up to two for normal
+            maps fitted through the pyramid, the second only when the first gained 3 %).
+
+    Bookkeeping:
+        entries: the plan entries given or chosen (`ENTRIES`), as sorted `(name, value)` pairs;
+            read them as attributes (`options.polish_cycles`).
+        held: the names given (the constructor, `updated`, `--option`): no automatic choice of
+            the run changes them, also when the value given is the default.
+
+    Presets are constructors: `ReconstructOptions.nicolet()`, `options.fine()`. What each default
+    bought is in docs/results.md.
     """
-
-    def __repr__(self) -> str:
-        return settings_repr(self)
-
 
     n_cycles: int = 4
     steps_per_cycle: int = 150
-    lr_decay: float = 0.5
-    optimize: OptimizeOptions = OptimizeOptions()
-    remesh: RemeshOptions | None = RemeshOptions(iterations=3, max_faces=12000)
-    initial_faces: int = 2000
-    initial_edge_length: float = 2.0
-    final_edge_length: float = 1.4
+    max_faces: int = 12000
+    remesh: bool = True
+    learning_rate: float = OptimizeOptions.learning_rate
+    lambda_: float = OptimizeOptions.lambda_
+    views_per_step: int | None = OptimizeOptions.views_per_step
+    sigma: float = RenderSettings.sigma
+    alpha: float = LossWeights.alpha
+    normal: float = LossWeights.normal
+    photo: float = LossWeights.photo
+    consistency: float = LossWeights.consistency
+    bilaplacian: float = LossWeights.bilaplacian
+    inversion: float = LossWeights.inversion
     start: str = "auto"
-    hull_resolutions: tuple[int, ...] = (64, 48, 80)
-    fine_below: float = 3.0
-    min_view_iou: float = 0.8
-    outlier_gap: float = 0.15
-    max_photo_error: float = 0.1
+    hidden_handles: str = "images"
     downsample: int = 1
     coarse_resolution: int = 128
-    native_cycles: int = 1
-    devices: int | None = None
-    one_jit: bool = False
     lighting: str = "sh"
-    hidden_handles: str = "images"
-    refits: int | None = None
-    refit_carve: float = 1.0
-    detail_faces: int = 40000
-    stereo_carve: float = 2.0
-    polish_cycles: int = 0
+    min_view_iou: float = 0.8
+    max_photo_error: float = 0.1
     subdivide: bool = True
-    fill_unseen: bool = True
-    fit_outline: bool = True
-    fit_photo_depth: bool = True
-    depth_edge_px: float = 8.0
-    fine_texture: bool = True
+    devices: int | None = None
+    refits: int | None = None
+    entries: tuple = ()
     held: frozenset = frozenset()
 
+    #: Constants of the stages (not settings): the visual hull's grids for the start and the genus
+    #: estimate, tried in order (the genus evidence was measured on them); the verdict's gap of a view
+    #: under the median IoU that fails it; the cycles at the images' own size in the pyramid.
+    hull_resolutions = (64, 48, 80)
+    outlier_gap = 0.15
+    native_cycles = 1
+
     def __post_init__(self):
-        for name in ("n_cycles", "steps_per_cycle", "initial_faces", "downsample"):
+        for name in ("n_cycles", "steps_per_cycle", "max_faces", "downsample"):
             _positive_int(name, getattr(self, name))
-        for name in ("coarse_resolution", "native_cycles", "detail_faces", "polish_cycles"):
-            _positive_int(name, getattr(self, name), 0)
-        if self.refits is not None:
-            _positive_int("refits", self.refits, 0)
-        if self.devices is not None:
-            _positive_int("devices", self.devices)
+        _positive_int("coarse_resolution", self.coarse_resolution, 0)
+        for name, v in (("refits", self.refits), ("devices", self.devices)):
+            if v is not None:
+                _positive_int(name, v, 0 if name == "refits" else 1)
+        for name in ("min_view_iou", "max_photo_error"):
+            _number(name, getattr(self, name), 0.0, 1.0)
+        for name in ("remesh", "subdivide"):
+            _flag(name, getattr(self, name))
+        _choice("hidden_handles", self.hidden_handles, ("images", "drill"))
+        _choice("lighting", self.lighting, ("sh", "directional"))
+        _choice("start", self.start, ("auto", "primitive", "sphere"))
+        if (not isinstance(self.entries, tuple) or not all(isinstance(e, tuple) and len(e) == 2 for e in self.entries)
+                or any(e[0] not in ENTRIES for e in self.entries)):
+            raise ValueError(f"options.entries must be (name, value) pairs of plan entries, got {self.entries!r}")
+        for name in ("initial_faces", "detail_faces", "polish_cycles"):
+            _positive_int(name, getattr(self, name), 1 if name == "initial_faces" else 0)
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
         for name in ("refit_carve", "fine_below", "stereo_carve", "depth_edge_px"):
             _number(name, getattr(self, name), 0.0, math.inf)
-        for name in ("min_view_iou", "outlier_gap", "max_photo_error"):
-            _number(name, getattr(self, name), 0.0, 1.0)
-        for name in ("subdivide", "fill_unseen", "fit_outline", "fit_photo_depth", "fine_texture"):
-            if not isinstance(getattr(self, name), bool):
-                raise ValueError(f"options.{name} must be True or False, got {getattr(self, name)!r}")
-        unknown = sorted(n for n in self.held if not isinstance(n, str) or n not in _setting_names())
+        for name in ("fill_unseen", "fit_outline", "fit_photo_depth", "fine_texture", "one_jit", "adaptive"):
+            _flag(name, getattr(self, name))
+        unknown = sorted(n for n in self.held if not isinstance(n, str) or n not in setting_names())
         if not isinstance(self.held, frozenset) or unknown:
             raise ValueError(f"options.held must be a frozenset of setting names, got {self.held!r}")
-        _choice("hidden_handles", self.hidden_handles, ("images", "drill"))
-        _choice("lighting", self.lighting, ("sh", "directional"))
-        _choice("start", self.start, ("auto", "primitive", "sphere"))
-        if not all(isinstance(r, int) and r >= 8 for r in self.hull_resolutions):
-            raise ValueError(f"options.hull_resolutions must be ints >= 8, got {self.hull_resolutions!r}")
-        if not isinstance(self.optimize, OptimizeOptions):
-            raise ValueError(f"options.optimize must be an OptimizeOptions, got {type(self.optimize).__name__}")
-        if self.remesh is not None:
-            if not isinstance(self.remesh, RemeshOptions):
-                raise ValueError(f"options.remesh must be a RemeshOptions or None, got {type(self.remesh).__name__}")
-            if self.remesh.max_faces is None:
-                raise ValueError("options.remesh.max_faces must be set: it is the run's face budget")
+        self.optimize, self.remesh_options  # noqa: B018  (the parts validate their own fields)
         if self.face_budget < self.initial_faces:
-            raise ValueError("options.remesh.max_faces must be >= options.initial_faces")
+            raise ValueError("options.max_faces must be >= options.initial_faces")
+
+    def __getattr__(self, name):  # the plan entries read as attributes
+        if name in ENTRIES:
+            return dict(self.__dict__.get("entries", ())).get(name, ENTRIES[name])
+        raise AttributeError(f"'ReconstructOptions' has no attribute {name!r}")
+
+    def __repr__(self) -> str:
+        changed = [f"{f.name}={getattr(self, f.name)!r}" for f in dataclasses.fields(self)
+                   if f.name not in ("entries", "held") and not _same(getattr(self, f.name), f.default)]
+        return f"ReconstructOptions({', '.join(changed + [f'{k}={v!r}' for k, v in self.entries])})"
+
+    @property
+    def optimize(self) -> OptimizeOptions:
+        """The `OptimizeOptions` of every optimizer block: the settings above, the plan entries,
+        the class's defaults for the rest."""
+        weights = LossWeights(alpha=self.alpha, normal=self.normal, photo=self.photo, consistency=self.consistency,
+                              bilaplacian=self.bilaplacian, inversion=self.inversion,
+                              **{n: getattr(self, n) for n in _WEIGHT_ENTRIES})
+        return OptimizeOptions(learning_rate=self.learning_rate, lambda_=self.lambda_, weights=weights,
+                               views_per_step=self.views_per_step, render=RenderSettings(sigma=self.sigma),
+                               **{n: getattr(self, n) for n in _OPTIMIZE_ENTRIES})
+
+    @property
+    def remesh_options(self) -> RemeshOptions | None:
+        """The `RemeshOptions` of the remeshes between cycles (the schedule sets the edge length);
+        None without remeshing."""
+        if not self.remesh:
+            return None
+        return RemeshOptions(iterations=REMESH_ITERATIONS, adaptive=self.adaptive, max_faces=self.max_faces)
 
     @property
     def face_budget(self) -> int:
-        """Faces the run may reach (`remesh.max_faces`; `initial_faces` without remeshing)."""
-        return self.initial_faces if self.remesh is None else int(self.remesh.max_faces)
+        """Faces the run may reach (`max_faces`; `initial_faces` without remeshing)."""
+        return int(self.max_faces) if self.remesh else self.initial_faces
 
     @property
     def render(self) -> RenderSettings:
-        """The renderer's settings of the fits and the verdict (`optimize.render`, or the defaults)."""
-        return self.optimize.render if self.optimize.render is not None else RenderSettings()
+        """The renderer's settings of the fits and the verdict."""
+        return self.optimize.render
 
     def updated(self, **settings) -> "ReconstructOptions":
-        """A copy with settings changed by their own names, wherever they live: a field of
-        this class, of `optimize`, of its `weights` (`LossWeights`) or `render`
-        (`RenderSettings`), or of `remesh` (no name repeats across them), e.g.
-        `ReconstructOptions().updated(learning_rate=0.05, sigma=0.03, adaptive=True, max_faces=30000)`.
-
-        Every setting named is held as given (added to `held`): no automatic choice of the run
-        changes it, also when it is the default (`updated(n_cycles=4)` stays 4 for photos of a
-        fine texture; `max_faces` is not raised for detailed photos). `stereo=0` also turns off
-        the stereo carving of the start, and a `max_faces` under `initial_faces` lowers that.
-        The command line's `--option NAME=VALUE` and `--max-faces` are this."""
+        """A copy with settings or plan entries changed by name, each held as given: no automatic
+        choice of the run changes it, also when it is the default (`updated(n_cycles=4)` stays 4 for
+        photos of a fine texture). `stereo=0` also turns off the stereo carving of the start, and a
+        `max_faces` under `initial_faces` lowers that. The CLI's `--option NAME=VALUE` is this."""
         change = dict(settings)
         if not settings.get("stereo", 1) and "stereo_carve" not in settings:
             change["stereo_carve"] = 0.0
@@ -264,50 +274,41 @@ class ReconstructOptions:
     def replaced(self, **settings) -> "ReconstructOptions":
         """`updated` without holding what it names: the run's own choices (presets, the
         fine-texture settings, the detail budget) go through this."""
-        own = {f.name for f in dataclasses.fields(self)}
-        parts = {"optimize": OptimizeOptions, "weights": LossWeights, "render": RenderSettings, "remesh": RemeshOptions}
-        changes = {"": {}, **{k: {} for k in parts}}
+        own, entries = {}, dict(self.entries)
+        fields = {f.name for f in dataclasses.fields(self)}
         for name, value in settings.items():
-            where = "" if name in own else next((k for k, cls in parts.items()
-                                                  if name in {f.name for f in dataclasses.fields(cls)}), None)
-            if where is None:
-                raise ValueError(f"options: no setting named {name!r}")
-            changes[where][name] = value
-        out = dict(changes[""])
-        opt = out.get("optimize", self.optimize)
-        if changes["weights"]:
-            changes["optimize"]["weights"] = dataclasses.replace(opt.weights, **changes["weights"])
-        if changes["render"]:
-            base = opt.render if opt.render is not None else RenderSettings()
-            changes["optimize"]["render"] = dataclasses.replace(base, **changes["render"])
-        if changes["optimize"]:
-            out["optimize"] = dataclasses.replace(opt, **changes["optimize"])
-        if changes["remesh"]:
-            base = out.get("remesh", self.remesh)
-            if base is None:
-                raise ValueError(f"options: {sorted(changes['remesh'])} set on a run without remeshing (remesh=None)")
-            out["remesh"] = dataclasses.replace(base, **changes["remesh"])
-        return dataclasses.replace(self, **out)
+            if name in fields:
+                own[name] = value
+            elif name in ENTRIES:
+                entries[name] = value
+            else:
+                raise ValueError(f"options: no setting named {name!r} (settings: ReconstructOptions' fields; "
+                                 f"plan entries: {', '.join(ENTRIES)})")
+        if {"adaptive"} & set(settings) and not own.get("remesh", self.remesh):
+            raise ValueError("options: ['adaptive'] set on a run without remeshing (remesh=False)")
+        if "entries" not in own:
+            own["entries"] = _entries(entries)
+        return dataclasses.replace(self, **own)
 
     @classmethod
     def nicolet(cls, **settings) -> "ReconstructOptions":
         """Nicolet et al. 2021: sphere start, no remeshing, same renderer, their uniform Adam (the max),
         the result as fitted (no `subdivide`)."""
-        return cls().replaced(start="sphere", remesh=None, subdivide=False, adam_quantile=1.0).updated(**settings)
+        return cls().replaced(start="sphere", remesh=False, subdivide=False, adam_quantile=1.0).updated(**settings)
 
     def fine(self) -> "ReconstructOptions":
         """A copy set up for thin structures a few pixels wide (e.g. sheets 2 px thick).
 
         `reconstruct` switches to it by itself when the visual hull is thinner than
-        `fine_below` pixels. Sharper edges (`sigma` 0.03 px: the outward tails of the
-        contour faces at the default 0.1 bias thin silhouettes out), a finer mesh (1.4 ->
-        1.0 px edges, up to 20k faces), 5 cycles with a slow step decay (0.9) and iterate
-        averaging (`average` 0.95: the step noise of the sampled views limits sheets under
+        `fine_below` pixels of the level the first cycles fit. Sharper edges (`sigma` 0.03 px: the
+        outward tails of the contour faces at the default 0.1 bias thin silhouettes out), a finer
+        mesh (1.4 -> 1.0 px edges, up to 20k faces), 5 cycles with a slow step decay (0.9) and
+        iterate averaging (`average` 0.95: the step noise of the sampled views limits sheets under
         2 px thick). About twice the time of the defaults; on thick shapes no better
-        (docs/reconstruction.md). `ReconstructOptions.nicolet().fine()` is the baseline at
-        the same renderer, schedule and averaging. Settings in `held` keep their values.
+        (docs/reconstruction.md). `ReconstructOptions.nicolet().fine()` is the baseline at the same
+        renderer, schedule and averaging. Settings in `held` keep their values.
         """
-        more = {} if self.remesh is None else {"max_faces": max(self.face_budget, 20000)}
+        more = {"max_faces": max(self.face_budget, 20000)} if self.remesh else {}
         change = dict(sigma=0.03, lr_decay=0.9, average=0.95, n_cycles=5, initial_edge_length=1.4,
                       final_edge_length=1.0, **more)
         return self.replaced(**{k: v for k, v in change.items() if k not in self.held})
@@ -315,7 +316,7 @@ class ReconstructOptions:
     def for_refit(self, targets: str) -> "ReconstructOptions":
         """The options of a refit of `targets`: carving (`refit_carve`) switched on for normal maps
         when the weights do not set it already."""
-        if targets == "normals" and self.refit_carve and not self.optimize.weights.carve:
+        if targets == "normals" and self.refit_carve and not self.carve:
             return self.replaced(carve=self.refit_carve)
         return self
 
@@ -331,7 +332,7 @@ class ReconstructOptions:
 
     def edge_lengths(self) -> list[float]:
         """Target edge length of each remesh in pixels (coarse to fine); none without remeshing."""
-        n = self.n_cycles - 1 if self.remesh is not None else 0
+        n = self.n_cycles - 1 if self.remesh else 0
         if n <= 0:
             return []
         if n == 1:
@@ -340,54 +341,40 @@ class ReconstructOptions:
         return [self.initial_edge_length * r**i for i in range(n)]
 
 
-def _nested_changes(part, default) -> set[str]:
-    """The names of the fields of settings `part` (and of its nested settings) that differ from `default`'s."""
-    if part is None or default is None or type(part) is not type(default):
-        return set()
-    names = set()
-    for f in dataclasses.fields(part):
-        value, base = getattr(part, f.name), getattr(default, f.name)
-        if dataclasses.is_dataclass(value):
-            names |= _nested_changes(value, base if base is not None else type(value)())
-        elif not _same(value, base):
-            names.add(f.name)
-    return names
+def _entries(values: dict) -> tuple:
+    """Plan entries as stored: sorted `(name, value)` pairs, those at their default left out."""
+    at_default = lambda k, v: type(v) is type(ENTRIES[k]) and _same(v, ENTRIES[k])  # noqa: E731  (1 is no True)
+    return tuple(sorted((k, v) for k, v in values.items() if not at_default(k, v)))
 
 
-def _same(a, b) -> bool:
-    try:
-        return bool(a == b)
-    except (TypeError, ValueError):  # arrays compare element-wise
-        return False
+def setting_names() -> frozenset:
+    """Every name `ReconstructOptions.updated` takes: its fields and the plan entries."""
+    own = {f.name for f in dataclasses.fields(ReconstructOptions)} - {"entries", "held"}
+    return frozenset(own | set(ENTRIES))
 
 
 _generated_init = ReconstructOptions.__init__
 
 
 def _init_holding_what_is_given(self, *args, **kwargs):
-    """`ReconstructOptions(...)`: the settings passed are held (`held`), as with `updated`; nested
-    settings passed (`optimize=OptimizeOptions(...)`) hold the fields they set. `dataclasses.replace`
-    passes `held` itself and holds nothing more."""
+    """`ReconstructOptions(...)`: fields and plan entries by name; what is passed is held (`held`), as
+    with `updated`. `dataclasses.replace` passes `held` itself and holds nothing more."""
+    entries = {k: kwargs.pop(k) for k in list(kwargs) if k in ENTRIES}
+    fields = {f.name for f in dataclasses.fields(ReconstructOptions)}
+    unknown = sorted(set(kwargs) - fields)
+    if unknown:
+        raise ValueError(f"options: no setting named {unknown[0]!r} (settings: ReconstructOptions' fields; "
+                         f"plan entries: {', '.join(ENTRIES)})")
+    if entries:
+        kwargs["entries"] = _entries({**dict(kwargs.get("entries", ())), **entries})
     _generated_init(self, *args, **kwargs)
     if "held" in kwargs:
         return
-    given = {f.name for f in dataclasses.fields(self)[: len(args)]} | set(kwargs)
-    names = set()
-    for name in given:
-        value = getattr(self, name)
-        if dataclasses.is_dataclass(value):
-            names |= _nested_changes(value, _DEFAULTS[name] if _DEFAULTS[name] is not None else type(value)())
-        else:
-            names.add(name)
-    if names:
-        object.__setattr__(self, "held", self.held | frozenset(names))
+    given = ({f.name for f in dataclasses.fields(self)[: len(args)]} | set(kwargs) | set(entries)) - {"entries", "held"}
+    given |= {k for k, _ in self.entries} if "entries" in kwargs and not entries else set()
+    if given:
+        object.__setattr__(self, "held", self.held | frozenset(given))
+        ReconstructOptions.__post_init__(self)
 
 
-_DEFAULTS = {f.name: f.default for f in dataclasses.fields(ReconstructOptions)}
 ReconstructOptions.__init__ = _init_holding_what_is_given
-
-
-def _setting_names() -> frozenset:
-    """Every name `ReconstructOptions.updated` takes."""
-    classes = (ReconstructOptions, OptimizeOptions, LossWeights, RenderSettings, RemeshOptions)
-    return frozenset(f.name for cls in classes for f in dataclasses.fields(cls))

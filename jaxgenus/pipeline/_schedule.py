@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.geometry import Mesh
-from jaxgenus.optim import (outside_distance, place, place_held, pyramid_level, resolution_factors, scaled_cameras,
+from jaxgenus.optim import (place, place_held, pyramid_level, resolution_factors, scaled_cameras,
                             step_views, view_neighbours, views_layout)
 from jaxgenus.pipeline._cycles import Level
 from jaxgenus.pipeline._history import CycleRecord, Plan
@@ -40,7 +40,7 @@ PIXELS_PER_FACE = 64
 
 def _consistency_used(setup: Setup, options: ReconstructOptions) -> bool:
     """Whether the fit uses photo-consistency (photo targets, its weight > 0, the views on one device)."""
-    return (setup.targets.kind == "photo" and options.optimize.weights.consistency > 0
+    return (setup.targets.kind == "photo" and options.consistency > 0
             and views_layout(len(setup.cams), options.devices)[0] is None)
 
 
@@ -79,7 +79,7 @@ def fit_factors(setup: Setup, options: ReconstructOptions, floor: int) -> list[i
 
 def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level]:
     """The level each cycle fits: downsampled copies of the targets (the schedule, photos no finer
-    than the plan's floor, `detail_floor`), the native level through crops when `optimize.crop` is set (only after
+    than the plan's floor, `detail_floor`), the native level through crops when `crop` is set (only after
     downsampled cycles); one program of `one_jit` fits the last level throughout."""
     cams = setup.cams
     floor = setup.plan.floor if setup.plan is not None else detail_floor(setup, options, start)
@@ -98,23 +98,21 @@ def _level(setup: Setup, options: ReconstructOptions, f: int, scheduled: bool, t
     cams, tg = setup.cams, setup.targets
     mesh, order, valid = views_layout(len(cams), options.devices)
     level = pyramid_level(tg.fit, f, normals=tg.kind == "normals")
-    outside = (jnp.asarray(outside_distance(level[..., -1], 0.5 / f**2))
-               if options.optimize.weights.containment > 0 else None)
-    crop = options.optimize.crop if (f == 1 and scheduled) else 0
+    crop = options.crop if (f == 1 and scheduled) else 0
     lc = scaled_cameras(cams, f)
     views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
     if mesh is not None:  # views split over the devices: each renders ceil(views / devices) of its own
         views = min(-(-views // mesh.size), len(order) // mesh.size) * mesh.size
         lc = place(lc[order], mesh, split=True)
         if setup.held is None:
-            level, outside = place((level[order], None if outside is None else outside[order]), mesh, split=True)
+            level = place(level[order], mesh, split=True)
         else:  # this process holds only its own views' images
-            level, outside = place_held((level, outside), mesh, order, setup.held)
+            level = place_held(level, mesh, order, setup.held)
     pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
     near = table
-    if table is not None and setup.stereo is not None and options.optimize.weights.stereo > 0 and not crop:
+    if table is not None and setup.stereo is not None and options.stereo > 0 and not crop:
         near = (table, jnp.asarray(_resampled(setup.stereo, f, lc.height, lc.width)))
-    return Level(lc, jnp.asarray(level), crop, outside, f, views, window, pixels,
+    return Level(lc, jnp.asarray(level), crop, f, views, window, pixels,
                  None if mesh is None else place(jnp.asarray(valid), mesh, split=True), near)
 
 
@@ -176,7 +174,7 @@ class CostModel:
         of the last level (`run_polish`)."""
         renders = 2 + (setup.targets.kind == "photo")  # the result's and the start's silhouettes, its colours
         n, h, w = len(setup.held_cams()), setup.cams.height, setup.cams.width
-        remeshes = tuple(bool(x > 0 and options.remesh is not None) for x in lengths)
+        remeshes = tuple(bool(x > 0 and options.remesh) for x in lengths)
         return CostModel(tuple(lv.pixels for lv in fitted) + (fitted[-1].pixels,) * polish,
                          remeshes + (False,) * polish, options.steps_per_cycle, renders * n * h * w, polish)
 
@@ -245,7 +243,7 @@ def planned(setup: Setup, genus_given: bool, say) -> Setup:
     factors = fit_factors(setup, options, floor)
     last = factors[-1]
     lc = scaled_cameras(cams, last)
-    crop = options.optimize.crop if last == 1 and factors[0] > 1 else 0
+    crop = options.crop if last == 1 and factors[0] > 1 else 0
     views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
     pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
     size = int(np.prod(np.shape(tg.fit))) * 4

@@ -147,7 +147,7 @@ def _thin(cams: Cameras, hulls: HullTable, pixel: float, options: ReconstructOpt
 
 def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pixel: float) -> tuple[int, int]:
     """`(budget, resolved)`: the face budget of a run and the faces its images resolve. Photos fitted
-    with photo-consistency (`optimize.weights.consistency > 0`, on one device) resolve about
+    with photo-consistency (`consistency > 0`, on one device) resolve about
     `area / (sqrt(3) / 4 * (DETAIL_EDGE * pixel)^2)` faces on the visual hull `hull` (its area in
     faces of `DETAIL_EDGE`-pixel edges). When that is 4 x `max_faces` or more (at the budget, edges
     of 8 px or longer: the photos' finest levels are left out, `detail_floor`), the budget rises
@@ -155,9 +155,9 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
     is None or `detail_faces` is not above `max_faces`: `max_faces` (docs/results.md, "Photo-consistency": "The face
     budget follows the images")."""
     budget = options.face_budget
-    if (kind != "photo" or options.remesh is None or options.detail_faces <= budget or hull is None
+    if (kind != "photo" or not options.remesh or options.detail_faces <= budget or hull is None
             or "max_faces" in options.held
-            or options.optimize.weights.consistency <= 0 or views_layout(n_views, options.devices)[0] is not None):
+            or options.consistency <= 0 or views_layout(n_views, options.devices)[0] is not None):
         return budget, 0
     v, f = hull.to_numpy()
     v = np.asarray(v, np.float64)
@@ -231,12 +231,9 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
     level blurs away is no fine texture. `share`: `texture_share(photos)` when measured already."""
     if kind != "photo" or not options.fine_texture or views_layout(n_views, options.devices)[0] is not None:
         return options
-    now = {"shading_ratio": options.optimize.weights.shading_ratio, "alpha": options.optimize.weights.alpha,
-           "photo": options.optimize.weights.photo, "consistency_blur": options.optimize.weights.consistency_blur,
-           "polish_cycles": options.polish_cycles, "n_cycles": options.n_cycles,
-           "adaptive": options.remesh is not None and options.remesh.adaptive}
-    colour = options.optimize.weights.consistency > 0
-    skip = {"consistency_blur": not colour, "polish_cycles": not colour, "adaptive": options.remesh is None,
+    now = {k: getattr(options, k) for k in TEXTURE_SETTINGS}
+    colour = options.consistency > 0
+    skip = {"consistency_blur": not colour, "polish_cycles": not colour, "adaptive": not options.remesh,
             "n_cycles": resolved >= 4 * options.face_budget or now["n_cycles"] >= TEXTURE_SETTINGS["n_cycles"]}
     change = {k: v for k, v in TEXTURE_SETTINGS.items()
               if k not in options.held and not skip.get(k, False) and now[k] != v}
@@ -258,7 +255,7 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
     for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over devices.
     The carving needs photos of a fine texture at the stereo size (`FINE_TEXTURE`): on smooth shading
     two views agree on wrong depths too, and a wrong carve takes true volume from the start."""
-    if (tg.kind != "photo" or (options.stereo_carve <= 0 and options.optimize.weights.stereo <= 0)
+    if (tg.kind != "photo" or (options.stereo_carve <= 0 and options.stereo <= 0)
             or views_layout(len(cams), options.devices)[0] is not None):
         return None, None
     factor = 1
@@ -270,7 +267,7 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
         why = (f"; no carving: albedo edges cover {share:.0%} of the masks, under {FINE_TEXTURE:.0%} (two views "
                "can agree on wrong depths of smooth shading)")
         options = options.replaced(stereo_carve=0.0)
-        if options.optimize.weights.stereo <= 0:
+        if options.stereo <= 0:
             say("stereo: off" + why)
             return None, None
     coarse = hull_occupancy(alpha, hull_cams, resolution=32, bounds=bounds, region=region)
