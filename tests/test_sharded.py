@@ -9,6 +9,8 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
+
 SCRIPT = textwrap.dedent(
     """
     import contextlib
@@ -84,6 +86,21 @@ RECONSTRUCT = textwrap.dedent(
             assert np.array_equal(np.asarray(named.mesh.vertices), np.asarray(rec.mesh.vertices))
         print("RESULT", devices, rec.history["devices"], rec.genus, cd, rec.history["ok"],
               rec.history["resolution"][0]["views"])
+    # photos of a fine texture on 4 devices: photo-consistency (each device looks its views' neighbours
+    # up in a copy of every view's photo), its polish and its verdict residual, as on one device
+    import sys
+    sys.path.insert(0, "tests")
+    from _meshes import torus_trimesh
+    from _raycast import cell_albedo, raycast_lambert
+    light = np.array([0.4, 0.8, 0.45]) / np.linalg.norm([0.4, 0.8, 0.45])
+    photos = np.asarray(raycast_lambert(cams, torus_trimesh(1.0, 0.35, 48, 24), light_direction=light, ambient=0.25,
+                                        albedo=cell_albedo(0.1)), np.float32)
+    opts = jg.ReconstructOptions(n_cycles=2, steps_per_cycle=10, polish_cycles=1, devices=4)
+    h = jg.reconstruct(photos, cams, 1, targets="photo", options=opts).history
+    assert h["devices"] == 4 and np.asarray(h["consistency"]).max() > 0, h["consistency"]
+    assert h["photo_consistency"] is not None and [c.polish for c in h["cycles"]] == [False, False, True]
+    assert not any("not used" in w for w in h["warnings"]), h["warnings"]
+    print("PHOTOS OK")
     """
 )
 
@@ -100,6 +117,7 @@ def test_reconstruct_on_four_devices_matches_one():
     # 80 steps differ by chance: 1.155x on one 2-core machine, below 1.15x on another
     assert found[4][2] <= 1.3 * found[1][2] and found[4][3], found
     assert found[4][4] == 4  # 4 views a step: one per device
+    assert "PHOTOS OK" in proc.stdout
 
 
 def _free_port() -> int:
@@ -155,7 +173,9 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
     assert jg.genus(jg.load_mesh(tmp_path / "two" / "mesh.obj")) == 1 and two <= 1.15 * one, (one, two)
 
 
-def test_photo_consistency_on_several_devices_is_reported_not_dropped_silently():
+def test_photo_consistency_over_processes_is_reported_not_dropped_silently():
+    """Split over processes, each holds only its own photos and the term is not computed: said. On one
+    device or several of one process the fit has a neighbour table and says nothing."""
     import types
 
     from jaxgenus.pipeline._fit import _device_warnings
@@ -163,10 +183,20 @@ def test_photo_consistency_on_several_devices_is_reported_not_dropped_silently()
 
     opts = ReconstructOptions().updated(consistency=1.0)
     photo = types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"))
-    split = [types.SimpleNamespace(valid=types.SimpleNamespace(sharding=types.SimpleNamespace(
-        mesh=types.SimpleNamespace(size=4))))]
+    split = [types.SimpleNamespace(table=None)]
     (line,) = _device_warnings(photo, opts, split)
-    assert "not used" in line and "4 devices" in line and "--devices 1" in line
-    assert _device_warnings(photo, opts, [types.SimpleNamespace(valid=None)]) == []  # one device: it is used
+    assert "not used" in line and "processes" in line
+    assert _device_warnings(photo, opts, [types.SimpleNamespace(table=np.zeros((4, 2), int))]) == []  # it is used
     assert _device_warnings(photo, opts.updated(consistency=0.0), split) == []  # turned off
     assert len(_device_warnings(photo, ReconstructOptions(), split)) == 1  # on by default: said
+
+
+def test_neighbours_of_a_split_layout_are_slots_of_real_views():
+    from jaxgenus.optim import spread_views
+    from jaxgenus.pipeline._schedule import _slot_table
+
+    order, valid = spread_views(10, 4)  # 3, 3, 2 + padding, 2 + padding
+    table = np.array([[(v + 1) % 10, (v + 9) % 10] for v in range(10)])
+    slots = _slot_table(table, order, valid)
+    assert slots.shape == (len(order), 2) and valid[slots].all()  # never a padding slot
+    np.testing.assert_array_equal(order[slots], table[order])  # slot s's neighbours are its view's, as slots

@@ -151,25 +151,27 @@ def place(tree, mesh, split: bool):
 
 
 def views_gradient(loss_fn: Callable, mesh, per_device: int, select: Callable) -> Callable:
-    """`gradient(key, x, app, views, valid, geometry) -> ((loss, terms), (gx, g_app))` over the devices of
-    `mesh` (module doc): `loss_fn(x, app, cameras, targets, outside, geometry)`, everything it reads passed
-    in (a value closed over from outside `shard_map` would carry the outer sharding). `views`: a tuple of per-view arrays (or None) split over the devices;
-    `select(key, views, index)` turns a device's sampled view indices into `(cameras, targets,
-    outside)` it renders (crops and all). A device samples `per_device` of its views, its valid ones
-    first (when it has fewer valid ones, copies of its first view fill in)."""
+    """`gradient(key, x, app, views, valid, geometry, everyone) -> ((loss, terms), (gx, g_app))` over the
+    devices of `mesh` (module doc): `loss_fn(x, app, cameras, targets, outside, geometry, near)`,
+    everything it reads passed in (a value closed over from outside `shard_map` would carry the outer
+    sharding). `views`: a tuple of per-view arrays (or None) split over the devices; `everyone`: arrays
+    every device holds whole (or None); `select(key, views, index, everyone)` turns a device's sampled
+    view indices into `(cameras, targets, outside, near)` it renders (crops, photo-consistency
+    neighbours and all). A device samples `per_device` of its views, its valid ones first (when it has
+    fewer valid ones, copies of its first view fill in)."""
 
-    def local(x, app, key, geometry, views, valid):
+    def local(x, app, key, geometry, everyone, views, valid):
         sub = jax.random.fold_in(key, jax.lax.axis_index(AXIS))
         weights = valid + 1e-6 * (1.0 - valid)  # padding only when a device runs out of views
         idx = jax.random.choice(sub, valid.shape[0], (per_device,), replace=False, p=weights / jnp.sum(weights))
-        cams, tgt, out = select(jax.random.fold_in(sub, 1), views, idx)
-        result = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry)
+        cams, tgt, out, near = select(sub, views, idx, everyone)
+        result = jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry, near)
         return jax.lax.pmean(result, AXIS)
 
-    mapped = jax.shard_map(local, mesh=mesh, in_specs=(P(), P(), P(), P(), P(AXIS), P(AXIS)), out_specs=P(),
+    mapped = jax.shard_map(local, mesh=mesh, in_specs=(P(), P(), P(), P(), P(), P(AXIS), P(AXIS)), out_specs=P(),
                            check_vma=False)
 
-    def gradient(key, x, app, views, valid, geometry):
-        return mapped(x, app, key, geometry, views, valid.astype(jnp.float32))
+    def gradient(key, x, app, views, valid, geometry, everyone=None):
+        return mapped(x, app, key, geometry, everyone, views, valid.astype(jnp.float32))
 
     return gradient

@@ -72,7 +72,7 @@ class LossWeights:
         consistency: multi-view photo-consistency of photo targets (`photo_consistency`: the
             mean robust cost of `1 - NCC` over textured windows, each view against a neighbour
             through the rendered depth); used when `objective` is given `neighbours`
-            (`reconstruct` gives them to photo targets on one device). Weight 1
+            (`reconstruct` gives them to photo targets in one process). Weight 1
             (docs/results.md, "Photo-consistency").
         albedo_edges: a factor on the photometric term at the pixels next to an albedo edge
             (`albedo_edges`: a jump in colour that shading does not make), where a face's blended

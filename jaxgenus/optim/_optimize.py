@@ -27,6 +27,7 @@ from typing import Callable, NamedTuple
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+from jax.sharding import NamedSharding, PartitionSpec as P
 from jaxtyping import Array, Float, Int, PRNGKeyArray
 
 from jaxgenus.optim._adam import UniformAdamState, adam as plain_adam, uniform_adam
@@ -232,36 +233,34 @@ class _Carry(NamedTuple):
     app_adam: UniformAdamState | None
 
 
-def _views(key, cameras, targets, boxes, outside, table, k: int | None, crop: int, stereo=None):
-    """The step's views: all, or `k` sampled without replacement; through random crops when `crop`.
-    With a neighbour `table` (`view_neighbours`), also one random neighbour of each (its whole view),
-    and the views' `stereo` depths when given (not with crops)."""
-    n_views = len(cameras)
-    if k is None or k >= n_views:
-        idx = jnp.arange(n_views)
-        cams, tgt, box, out = cameras, targets, boxes, outside
+def _views(key, idx, cameras, targets, boxes, outside, table, crop: int, stereo=None, everyone=None):
+    """The step's views `idx` (None: all of them), through random crops when `crop`. With a neighbour
+    `table` (`view_neighbours`), also one random neighbour of each (its whole view), looked up in
+    `everyone`, the `(cameras, targets)` of every view (default: these), and the views' `stereo`
+    depths when given (not with crops)."""
+    if idx is None:
+        idx, cams, tgt, box, out = jnp.arange(len(cameras)), cameras, targets, boxes, outside
     else:
-        idx = jax.random.choice(key, n_views, (k,), replace=False)
         cams, tgt, box = cameras[idx], targets[idx], None if boxes is None else boxes[idx]
         out = None if outside is None else outside[idx]
     near = None
     if table is not None:
         pick = jax.random.randint(jax.random.fold_in(key, 2), idx.shape, 0, table.shape[1])
         nb = table[idx, pick]
-        near = (cameras[nb], targets[nb]) + (() if stereo is None or crop else (stereo[idx],))
+        all_cams, all_targets = (cameras, targets) if everyone is None else everyone
+        near = (all_cams[nb], all_targets[nb]) + (() if stereo is None or crop else (stereo[idx],))
     if crop:
         cams, tgt = crop_views(jax.random.fold_in(key, 1), cams, tgt, box, crop)
     return cams, tgt, out, near
 
 
-def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, crop: int, geometry: tuple):
+def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, crop: int, geometry: tuple, everyone):
     """`gradient(key, x, app) -> ((loss, terms), (gx, g_app))` of a step: on the step's views, or with
-    `options.device_mesh` on every device from its own (`views_gradient`)."""
-    def select(key, local, idx):
-        cams, tgt, out, box = local[:4]
-        cams, tgt = cams[idx], tgt[idx]
-        box, out = (None if box is None else box[idx]), (None if out is None else out[idx])
-        return crop_views(key, cams, tgt, box, crop) + (None,) if crop else (cams, tgt, out)
+    `options.device_mesh` on every device from its own (`views_gradient`), their photo-consistency
+    neighbours looked up in `everyone` (every view's cameras and targets on every device)."""
+    def select(key, local, idx, everyone):
+        cams, tgt, out, box, table, stereo = local
+        return _views(key, idx, cams, tgt, box, None if crop else out, table, crop, stereo, everyone)
 
     mesh = options.device_mesh
     if mesh is not None:
@@ -269,10 +268,12 @@ def _gradient(loss_fn, options: OptimizeOptions, views: tuple, valid, k: int, cr
             raise ValueError("valid: needed with options.device_mesh (jaxgenus.optim.spread_views)")
         devices = mesh.shape[AXIS]
         return lambda key, x, app: views_gradient(loss_fn, mesh, min(-(-k // devices), len(valid) // devices),
-                                                  select)(key, x, app, views, valid, geometry)
+                                                  select)(key, x, app, views, valid, geometry, everyone)
 
     def gradient(key, x, app):
-        cams, tgt, out, near = _views(key, views[0], views[1], views[3], views[2], views[4], k, crop, views[5])
+        n = len(views[0])
+        idx = None if k is None or k >= n else jax.random.choice(key, n, (k,), replace=False)
+        cams, tgt, out, near = _views(key, idx, views[0], views[1], views[3], views[2], views[4], crop, views[5])
         return jax.value_and_grad(loss_fn, argnums=(0, 1), has_aux=True)(x, app, cams, tgt, out, geometry, near)
 
     return gradient
@@ -292,8 +293,9 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program).
     `valid`: with `options.device_mesh`, which views are real (`spread_views`). `neighbours`: photo
     targets: `(N, M)` neighbour views of every view (`view_neighbours`) for the photo-consistency
-    term (on one device only: with a device mesh it is not used), or `(table, depths (N, H, W))` with
-    the views' stereo depths for the `stereo` term."""
+    term, or `(table, depths (N, H, W))` with the views' stereo depths for the `stereo` term. With a
+    device mesh the table's rows and entries are slots of the `spread_views` layout, and every device
+    gets a copy of all views' cameras and targets once a block, to look its views' neighbours up in."""
     mesh, rest = state.mesh, state.rest_vertices
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
@@ -321,8 +323,12 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
     if isinstance(neighbours, tuple):  # (table, the views' stereo depths)
         neighbours, stereo = neighbours
     used = options.weights.consistency or (options.weights.stereo and stereo is not None)
-    table = neighbours if photo and used and options.device_mesh is None else None
-    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes, table, stereo), valid, k, crop, geometry)
+    table = neighbours if photo and used else None
+    everyone = None
+    if table is not None and options.device_mesh is not None:  # every view's photo where its neighbours render
+        everyone = jax.lax.with_sharding_constraint((cameras, targets), NamedSharding(options.device_mesh, P()))
+    gradient = _gradient(loss_fn, options, (cameras, targets, outside, boxes, table, stereo), valid, k, crop, geometry,
+                         everyone)
 
     def step(c: _Carry, _):
         key, sub = jax.random.split(c.key)
@@ -387,7 +393,8 @@ def optimize_block(
             out by `jaxgenus.optim.spread_views` and split over the mesh (`place`).
         neighbours: photo targets: `(N, M)` int neighbour views of every view
             (`jaxgenus.optim.view_neighbours`), which turns on the photo-consistency term
-            (`LossWeights.consistency`; one device only).
+            (`LossWeights.consistency`); with `options.device_mesh`, rows and entries are slots of the
+            `spread_views` layout.
 
     Returns:
         `(new_state, record)`: a `StepRecord` whose fields (`record["loss"]`, ...,

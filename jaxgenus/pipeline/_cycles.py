@@ -66,7 +66,10 @@ class Level(NamedTuple):
             views, whole (`window` 0) or through `window x window` windows; `pixels` in all.
         valid: views split over devices (`jaxgenus.optim.spread_views`): which are real; else None.
         neighbours: photo targets: `(N, M)` neighbour views of each view (photo-consistency), or
-            `(table, depths (N, h, w))` with the views' stereo depths at this level; else None.
+            `(table, depths (N, h, w))` with the views' stereo depths at this level; else None. With
+            the views split over devices, in the slots of their layout (`optimize_steps`).
+        table: photo-consistency: the `(N, M)` neighbour views of each view (host, the views' own
+            order: the verdict's residual); else None.
     """
 
     cameras: Cameras
@@ -78,6 +81,7 @@ class Level(NamedTuple):
     pixels: int = 0
     valid: jax.Array | None = None
     neighbours: jax.Array | tuple | None = None
+    table: np.ndarray | None = None
 
 
 class CycleOutput(NamedTuple):
@@ -358,8 +362,8 @@ def run_one_jit(state, levels: list[Level], world_lengths, options: ReconstructO
 
 def polish_count(options: ReconstructOptions, level: Level) -> int:
     """The polish cycles a fit whose finest level is `level` runs: `options.polish_cycles` when it
-    fits photos with photo-consistency (neighbours given: one device), else 0."""
-    return options.polish_cycles if level.neighbours is not None and options.consistency > 0 else 0
+    fits photos with photo-consistency (a neighbour table), else 0."""
+    return options.polish_cycles if level.table is not None and options.consistency > 0 else 0
 
 
 #: The polish's large-steps `lambda_`: less smoothing than the cycles' (19), so photo-consistency can

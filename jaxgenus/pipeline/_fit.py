@@ -15,7 +15,7 @@ from typing import Callable
 import numpy as np
 
 from jaxgenus.geometry import Mesh, genus as mesh_genus, is_closed_manifold
-from jaxgenus.optim import init_optimizer_state, place, pyramid_level
+from jaxgenus.optim import init_optimizer_state, place, pyramid_level, scaled_cameras
 from jaxgenus.pipeline._cycles import CycleRun, Level, polish_count, run_one_jit, run_per_cycle, run_polish
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -68,12 +68,12 @@ def estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
 
 
 def _device_warnings(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[str]:
-    """Photo-consistency (on by default for photos) while the views are split over devices, where it is not computed."""
-    if setup.targets.kind != "photo" or options.consistency <= 0 or levels[0].valid is None:
+    """Photo-consistency (on by default for photos) while the views are split over processes, each holding
+    only its own photos, where it is not computed."""
+    if setup.targets.kind != "photo" or options.consistency <= 0 or levels[0].table is not None:
         return []
-    n = int(levels[0].valid.sharding.mesh.size)
-    return [f"photo-consistency was not used: the views were split over {n} devices, where the term is not "
-            "computed; fit on one device for it (ReconstructOptions.devices=1, CLI --devices 1)"]
+    return ["photo-consistency was not used: the views were split over processes, each holding only its own "
+            "photos, where the term is not computed; fit in one process for it"]
 
 
 def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
@@ -138,12 +138,11 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     photos = np.asarray(setup.images, np.float32) if setup.targets.kind == "photo" else None
     finest = levels[-1]
     consistency = None
-    if finest.neighbours is not None:  # the residual at the finest level fitted (straight colours)
-        level = np.asarray(finest.targets)
+    if finest.table is not None:  # the residual at the finest level fitted (straight colours), views in order
+        level = np.asarray(pyramid_level(setup.targets.fit, finest.factor, normals=False))
         a = level[..., 3:]
         level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
-        table = finest.neighbours[0] if isinstance(finest.neighbours, tuple) else finest.neighbours
-        consistency = (finest.cameras, level, np.asarray(table))
+        consistency = (scaled_cameras(setup.cams, finest.factor), level, finest.table)
     verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
                              None if app is None else (app.albedo, app.lighting), photos,
                              carved_start=start.kind.startswith("visual_hull"), consistency=consistency,

@@ -27,7 +27,7 @@ from jaxgenus.optim import (place, place_held, pyramid_level, resolution_factors
 from jaxgenus.pipeline._cycles import Level
 from jaxgenus.pipeline._history import CycleRecord, Plan
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._setup import Setup, fine_texture, texture_share
+from jaxgenus.pipeline._setup import Setup, fine_texture, split_over_processes, texture_share
 
 __all__ = ["CostModel", "PIXELS_PER_FACE", "detail_floor", "fit_factors", "levels", "planned", "schedule_line",
            "world_lengths"]
@@ -39,9 +39,11 @@ PIXELS_PER_FACE = 64
 
 
 def _consistency_used(setup: Setup, options: ReconstructOptions) -> bool:
-    """Whether the fit uses photo-consistency (photo targets, its weight > 0, the views on one device)."""
+    """Whether the fit uses photo-consistency: photo targets, its weight > 0, and the views not split over
+    processes (on one device, or on several of one process: each looks its views' neighbours up in a
+    copy of every view's photo)."""
     return (setup.targets.kind == "photo" and options.consistency > 0
-            and views_layout(len(setup.cams), options.devices)[0] is None)
+            and not split_over_processes(len(setup.cams), options.devices))
 
 
 def _area(mesh: Mesh) -> float:
@@ -88,7 +90,7 @@ def levels(setup: Setup, options: ReconstructOptions, start: Mesh) -> list[Level
                                    options.native_cycles)[0] > 1
     table = None
     if _consistency_used(setup, options):  # photo-consistency pairs: views that see the same part of the start
-        table = jnp.asarray(view_neighbours(cams, points=np.asarray(start.to_numpy()[0], np.float64)))
+        table = view_neighbours(cams, points=np.asarray(start.to_numpy()[0], np.float64))
     built = {f: _level(setup, options, f, scheduled, table) for f in sorted(set(factors))}
     return [built[f] for f in factors]
 
@@ -101,6 +103,10 @@ def _level(setup: Setup, options: ReconstructOptions, f: int, scheduled: bool, t
     crop = options.crop if (f == 1 and scheduled) else 0
     lc = scaled_cameras(cams, f)
     views, window = step_views(len(lc), lc.height, lc.width, dataclasses.replace(options.optimize, crop=crop))
+    near = None if table is None else jnp.asarray(table)
+    stereo = None
+    if table is not None and setup.stereo is not None and options.stereo > 0 and not crop:
+        stereo = jnp.asarray(_resampled(setup.stereo, f, lc.height, lc.width))
     if mesh is not None:  # views split over the devices: each renders ceil(views / devices) of its own
         views = min(-(-views // mesh.size), len(order) // mesh.size) * mesh.size
         lc = place(lc[order], mesh, split=True)
@@ -108,12 +114,21 @@ def _level(setup: Setup, options: ReconstructOptions, f: int, scheduled: bool, t
             level = place(level[order], mesh, split=True)
         else:  # this process holds only its own views' images
             level = place_held(level, mesh, order, setup.held)
+        if table is not None:  # the neighbours of each slot's view, as slots (optimize_steps)
+            near = place(jnp.asarray(_slot_table(table, order, valid)), mesh, split=True)
+            stereo = None if stereo is None else place(stereo[order], mesh, split=True)
     pixels = views * (min(window, lc.height) * min(window, lc.width) if window else lc.height * lc.width)
-    near = table
-    if table is not None and setup.stereo is not None and options.stereo > 0 and not crop:
-        near = (table, jnp.asarray(_resampled(setup.stereo, f, lc.height, lc.width)))
     return Level(lc, jnp.asarray(level), crop, f, views, window, pixels,
-                 None if mesh is None else place(jnp.asarray(valid), mesh, split=True), near)
+                 None if mesh is None else place(jnp.asarray(valid), mesh, split=True),
+                 near if stereo is None else (near, stereo), table)
+
+
+def _slot_table(table: np.ndarray, order: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """`table (N, M)` of views' neighbours in the `spread_views` layout `(order, valid)`: row `s` holds the
+    neighbours of slot `s`'s view, each as the slot that holds that view (a real one, not padding)."""
+    slot_of = np.zeros(len(table), np.int64)
+    slot_of[order[valid]] = np.flatnonzero(valid)
+    return slot_of[np.asarray(table)[order]].astype(np.int32)
 
 
 def _resampled(stereo, factor: int, height: int, width: int) -> np.ndarray:
@@ -259,6 +274,10 @@ def planned(setup: Setup, genus_given: bool, say) -> Setup:
     if polish:
         settings["polish_cycles"] = polish
     mesh = views_layout(len(cams), options.devices)[0]
+    if mesh is not None and _consistency_used(setup, options):
+        finest = int(np.prod(np.shape(tg.fit))) * 4 // last**2
+        chose.append(f"photo-consistency on {mesh.size} devices: each holds its views and a copy of every view's "
+                     f"photo to look their neighbours up in ({finest / 2**20:.0f} MiB at the finest level)")
     scene = {"views": len(cams), "size": [cams.width, cams.height], "targets": tg.kind, "genus": setup.genus,
              "genus_from": "given" if genus_given else "estimated", "devices": 1 if mesh is None else int(mesh.size),
              "hull_thickness_px": setup.thickness, "texture_share": share, "resolved_faces": setup.resolved}

@@ -69,7 +69,7 @@ class Setup:
         notes: what the run should warn of, found here (views cut by the frame).
         held: the views (indices into `cams`) `images` and `targets` hold when this process
             holds only some (`reconstruct(..., views=)`); None: all of them.
-        stereo: photo targets on one device: `(depths (N, h, w), factor)`, the plane-sweep depths
+        stereo: photo targets in one process: `(depths (N, h, w), factor)`, the plane-sweep depths
             (canonical frame; NaN: none) of `targets.fit` downsampled by `factor`; else None.
         resolved: the faces the photos resolve (`detail_budget`); 0 where not counted.
         choices: the lines of the choices made here (the thin-structure switch, the face budget).
@@ -103,6 +103,14 @@ class Setup:
     def all_views(self, local) -> np.ndarray:
         """A per-view array of the views held here completed with every other process's views."""
         return gathered_views(local, self.held, len(self.cams))
+
+
+def split_over_processes(n_views: int, devices: int | None) -> bool:
+    """Whether a run's views are split over the devices of several processes: each process then holds
+    only its own photos, and what compares a view with its neighbours (photo-consistency, stereo, the
+    texture's measure and the detail it resolves) is not computed. Several devices of one process
+    hold every photo."""
+    return jax.process_count() > 1 and views_layout(n_views, devices)[0] is not None
 
 
 def _cut_note(alpha, say: Callable[[str], None]) -> tuple[str, ...]:
@@ -147,7 +155,7 @@ def _thin(cams: Cameras, hulls: HullTable, pixel: float, options: ReconstructOpt
 
 def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pixel: float) -> tuple[int, int]:
     """`(budget, resolved)`: the face budget of a run and the faces its images resolve. Photos fitted
-    with photo-consistency (`consistency > 0`, on one device) resolve about
+    with photo-consistency (`consistency > 0`, in one process) resolve about
     `area / (sqrt(3) / 4 * (DETAIL_EDGE * pixel)^2)` faces on the visual hull `hull` (its area in
     faces of `DETAIL_EDGE`-pixel edges). When that is 4 x `max_faces` or more (at the budget, edges
     of 8 px or longer: the photos' finest levels are left out, `detail_floor`), the budget rises
@@ -157,7 +165,7 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
     budget = options.face_budget
     if (kind != "photo" or not options.remesh or options.detail_faces <= budget or hull is None
             or "max_faces" in options.held
-            or options.consistency <= 0 or views_layout(n_views, options.devices)[0] is not None):
+            or options.consistency <= 0 or split_over_processes(n_views, options.devices)):
         return budget, 0
     v, f = hull.to_numpy()
     v = np.asarray(v, np.float64)
@@ -222,14 +230,14 @@ def texture_share(photos) -> float:
 def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, say: Callable[[str], None],
                  resolved: int = 0, share: float | None = None) -> ReconstructOptions:
     """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
-    edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets on one device, as
+    edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets in one process, as
     a process of a split run holds only its own views, and `options.fine_texture`): each setting of
     `TEXTURE_SETTINGS` not in `options.held` at that value, but the colour terms (`consistency_blur`,
     `polish_cycles`) only with photo-consistency on, and `n_cycles` only where the photos resolve
     fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not counted) and
     it is not more already. The share is measured on the images the fit sees: a texture the finest
     level blurs away is no fine texture. `share`: `texture_share(photos)` when measured already."""
-    if kind != "photo" or not options.fine_texture or views_layout(n_views, options.devices)[0] is not None:
+    if kind != "photo" or not options.fine_texture or split_over_processes(n_views, options.devices):
         return options
     now = {k: getattr(options, k) for k in TEXTURE_SETTINGS}
     colour = options.consistency > 0
@@ -252,11 +260,11 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
                   region=None):
     """`(carve, stereo)`: the carving of the visual hull by plane-sweep stereo of the photos
     (`ReconstructOptions.stereo_carve`) as a map of occupancy grids, and `Setup.stereo`; `(None, None)`
-    for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over devices.
+    for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over processes.
     The carving needs photos of a fine texture at the stereo size (`FINE_TEXTURE`): on smooth shading
     two views agree on wrong depths too, and a wrong carve takes true volume from the start."""
     if (tg.kind != "photo" or (options.stereo_carve <= 0 and options.stereo <= 0)
-            or views_layout(len(cams), options.devices)[0] is not None):
+            or split_over_processes(len(cams), options.devices)):
         return None, None
     factor = 1
     while max(cams.height, cams.width) / factor > STEREO_SIZE:
