@@ -282,8 +282,7 @@ class ReconstructOptions:
             elif name in ENTRIES:
                 entries[name] = value
             else:
-                raise ValueError(f"options: no setting named {name!r} (settings: ReconstructOptions' fields; "
-                                 f"plan entries: {', '.join(ENTRIES)})")
+                raise ValueError(_unknown(name))
         if {"adaptive"} & set(settings) and not own.get("remesh", self.remesh):
             raise ValueError("options: ['adaptive'] set on a run without remeshing (remesh=False)")
         if "entries" not in own:
@@ -347,6 +346,11 @@ def _entries(values: dict) -> tuple:
     return tuple(sorted((k, v) for k, v in values.items() if not at_default(k, v)))
 
 
+def _unknown(name: str) -> str:
+    return (f"options: no setting named {name!r} (the settings are ReconstructOptions' fields, the plan entries "
+            "jaxgenus.pipeline.ENTRIES; the CLI's --option list prints both)")
+
+
 def setting_names() -> frozenset:
     """Every name `ReconstructOptions.updated` takes: its fields and the plan entries."""
     own = {f.name for f in dataclasses.fields(ReconstructOptions)} - {"entries", "held"}
@@ -363,8 +367,7 @@ def _init_holding_what_is_given(self, *args, **kwargs):
     fields = {f.name for f in dataclasses.fields(ReconstructOptions)}
     unknown = sorted(set(kwargs) - fields)
     if unknown:
-        raise ValueError(f"options: no setting named {unknown[0]!r} (settings: ReconstructOptions' fields; "
-                         f"plan entries: {', '.join(ENTRIES)})")
+        raise ValueError(_unknown(unknown[0]))
     if entries:
         kwargs["entries"] = _entries({**dict(kwargs.get("entries", ())), **entries})
     _generated_init(self, *args, **kwargs)
