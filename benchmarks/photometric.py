@@ -74,8 +74,7 @@ def run_one(shape: str, albedo: str, targets: str, res: int, views: int, options
 
     gt, genus = load_shape(f"shared:{shape}")
     options = dict(options)
-    if "weights" in options:  # LossWeights fields as a dict
-        options["weights"] = jg.LossWeights(**options["weights"])
+    options.update(options.pop("weights", {}))  # the older form: LossWeights fields as a dict under "weights"
     cams = jg.sphere_cameras(views, radius=3.0, fov_deg=40.0, resolution=res)
     photos = raycast_lambert(cams, gt, light_direction=LIGHT, ambient=AMBIENT,
                              albedo=ALBEDOS[albedo])
@@ -169,7 +168,7 @@ def main():
     ap.add_argument("--res", type=int, default=128)
     ap.add_argument("--views", type=int, default=24)
     ap.add_argument("--options", default="{}",
-                    help="ReconstructOptions overrides as JSON; \"weights\": {LossWeights fields}")
+                    help="ReconstructOptions settings and plan entries by name, as JSON")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", default="docs")
     ap.add_argument("--resume", action="store_true", help="keep the rows already saved")

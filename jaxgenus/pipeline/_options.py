@@ -214,7 +214,16 @@ class ReconstructOptions:
         unknown = sorted(n for n in self.held if not isinstance(n, str) or n not in setting_names())
         if not isinstance(self.held, frozenset) or unknown:
             raise ValueError(f"options.held must be a frozenset of setting names, got {self.held!r}")
-        self.optimize, self.remesh_options  # noqa: B018  (the parts validate their own fields)
+        for name in ("learning_rate", "lambda_", "sigma", "alpha", "normal", "photo", "consistency", "bilaplacian",
+                     "inversion", *_WEIGHT_ENTRIES, "average", "adam_quantile"):
+            if isinstance(getattr(self, name), bool):
+                raise ValueError(f"options.{name} must be a number, got {getattr(self, name)!r}")
+        try:  # the parts validate their own fields
+            self.optimize, self.remesh_options  # noqa: B018
+        except ValueError as err:
+            raise ValueError(f"options: {err}") from None
+        if self.adaptive and not self.remesh:
+            raise ValueError("options.adaptive set on a run without remeshing (remesh=False)")
         if self.face_budget < self.initial_faces:
             raise ValueError("options.max_faces must be >= options.initial_faces")
 
@@ -283,8 +292,6 @@ class ReconstructOptions:
                 entries[name] = value
             else:
                 raise ValueError(_unknown(name))
-        if {"adaptive"} & set(settings) and not own.get("remesh", self.remesh):
-            raise ValueError("options: ['adaptive'] set on a run without remeshing (remesh=False)")
         if "entries" not in own:
             own["entries"] = _entries(entries)
         return dataclasses.replace(self, **own)
@@ -342,7 +349,7 @@ class ReconstructOptions:
 
 def _entries(values: dict) -> tuple:
     """Plan entries as stored: sorted `(name, value)` pairs, those at their default left out."""
-    at_default = lambda k, v: type(v) is type(ENTRIES[k]) and _same(v, ENTRIES[k])  # noqa: E731  (1 is no True)
+    at_default = lambda k, v: k in ENTRIES and type(v) is type(ENTRIES[k]) and _same(v, ENTRIES[k])  # noqa: E731
     return tuple(sorted((k, v) for k, v in values.items() if not at_default(k, v)))
 
 
@@ -368,8 +375,9 @@ def _init_holding_what_is_given(self, *args, **kwargs):
     unknown = sorted(set(kwargs) - fields)
     if unknown:
         raise ValueError(_unknown(unknown[0]))
-    if entries:
-        kwargs["entries"] = _entries({**dict(kwargs.get("entries", ())), **entries})
+    given = kwargs.get("entries", ())
+    if entries or (given and isinstance(given, tuple) and all(isinstance(e, tuple) and len(e) == 2 for e in given)):
+        kwargs["entries"] = _entries({**dict(given), **entries})  # sorted, one pair a name, none at its default
     _generated_init(self, *args, **kwargs)
     if "held" in kwargs:
         return
