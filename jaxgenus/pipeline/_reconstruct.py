@@ -360,7 +360,7 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
     depth = opts.fit_photo_depth and setup.targets.kind == "photo"
     if finest <= 1 or not (opts.fit_outline or depth):
         return rec
-    if setup.held is not None:
+    if setup.held is not None and len(setup.held) < len(setup.cams):  # this process holds only some views
         say("outline and depth: not refined at the images' own size with the views split over processes")
         return rec
     cams, fixed = setup.world_cams, None
