@@ -5,11 +5,11 @@
 
 Shapes: the shared meshes (`../shared/meshes` or `$JAXGENUS_SHARED_MESHES`), centred and scaled
 into the unit ball, and shapes of ours whose holes no silhouette shows (`tests/_hidden.py`: the
-covered plate, the long-tunnel plate, the mug), seen from `--views` cameras on a sphere at
+covered plate, the long-tunnel plate, the perforated plate, the mug, the wheel), seen from `--views` cameras on a sphere at
 `--res`^2 and ray cast with trimesh (`tests/_raycast.py`, independent of our renderer):
 `--targets normals` (the default: normal maps, so the estimate also tests holes in the images'
 interior), `silhouette` (masks only) or `photo` (Lambertian photos of a grey albedo).
-`--reconstruct` also runs `reconstruct` without a genus and scores the handles' placement
+`--reconstruct [given]` also runs `reconstruct` without a genus (or with the true one) and scores the handles' placement
 (`jaxgenus.metrics.handle_placement`, b1 of object / result / both / either) and the volume IoU. Captures:
 `--capture DIR GENUS` for a folder with `image/`, `mask/` and one camera file (any format
 `jaxgenus.load_cameras` reads), e.g. Middlebury's templeSparseRing (genus 3) and
@@ -61,12 +61,14 @@ def row(label: str, genus: int, images, cams, gt=None, whole: bool = False) -> d
     out = dict(shape=label, genus=genus, estimate=e.genus, agreement=e.agreement, plausible=list(e.plausible),
                cue=e.cue, holes=f"{sum(h['kept'] for h in e.holes)}/{len(e.holes)}",
                grids={str(k): v for k, v in grids.items()}, seconds=time.perf_counter() - t0)
+    print(json.dumps(out), flush=True)
     if whole and gt is not None:
         t0 = time.perf_counter()
-        rec = jg.reconstruct(images, cams)
+        rec = jg.reconstruct(images, cams, genus if whole == "given" else None)
         p = jg.metrics.handle_placement(gt, rec.mesh, resolution=160)
-        out.update(rec_genus=rec.genus, rec_estimate=rec.history["genus_estimate"].genus, ok=rec.history["ok"],
-                   placement=f"{p.object}/{p.result}/{p.both}/{p.either}",
+        estimate = rec.history.get("genus_estimate")
+        out.update(rec_genus=rec.genus, rec_estimate=None if estimate is None else estimate.genus, ok=rec.history["ok"],
+                   placement="/".join(str(b.b1) for b in (p.object, p.result, p.intersection, p.union)),
                    iou=jg.metrics.volume_iou(rec.mesh, gt, n_samples=100_000), rec_seconds=time.perf_counter() - t0)
     return out
 
@@ -75,7 +77,7 @@ def shapes(names):
     """`(name, Mesh, genus)`: the shared meshes (all, or `names`) and ours with hidden holes."""
     import _hidden
 
-    ours = {make.__name__: make for make in (_hidden.covered_plate, _hidden.long_tunnel_plate, _hidden.mug)}
+    ours = {make.__name__: make for make in (_hidden.covered_plate, _hidden.long_tunnel_plate, _hidden.perforated_plate, _hidden.mug, _hidden.wheel)}
     for name in (names if names is not None else shared_names() + list(ours)):
         if name in ours:
             v, f, genus = ours[name]()
@@ -92,9 +94,10 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--views", type=int, default=24)
     ap.add_argument("--res", type=int, default=128)
-    ap.add_argument("--shapes", nargs="*", default=None, help="shared mesh names or covered_plate, long_tunnel_plate, mug (default: all)")
+    ap.add_argument("--shapes", nargs="*", default=None, help="shared mesh names or covered_plate, long_tunnel_plate, perforated_plate, mug, wheel (default: all)")
     ap.add_argument("--targets", choices=("normals", "silhouette", "photo"), default="normals")
-    ap.add_argument("--reconstruct", action="store_true", help="also reconstruct without a genus; placement, IoU")
+    ap.add_argument("--reconstruct", nargs="?", const="estimated", choices=("estimated", "given"), default=None,
+                    help="also reconstruct, without a genus or ('given') with the true one; placement, IoU")
     ap.add_argument("--capture", nargs=2, action="append", default=[], metavar=("DIR", "GENUS"))
     ap.add_argument("--keep", type=int, default=None, help="views of each capture to use")
     ap.add_argument("--out", type=Path, default=Path("genus_estimate_out"))

@@ -1,7 +1,9 @@
 """Hidden handles: are a result's handles the object's own?
 
 Shapes whose holes no silhouette shows (`tests/_hidden.py`: the covered plate,
-genus 4; the long-tunnel plate, genus 4, whose visual hull has genus 0; a mug with a strap handle flat against its side, genus 1) and shared meshes (the boot, genus 12, whose lace eyelets are seen
+genus 4; the long-tunnel plate, genus 4, and the perforated plate, genus 8, whose visual hulls have
+genus 0; a mug with a strap handle flat against its side, genus 1; a wheel of ten spokes with a narrow
+axle hole, genus 11, visual hull 10) and shared meshes (the boot, genus 12, whose lace eyelets are seen
 only against the boot) are ray cast with trimesh + embree into normal maps
 (24 views), and reconstructed with the default options and the true genus.
 
@@ -14,6 +16,8 @@ The result is scored in the frame it was reconstructed in (the cameras' frame,
 no alignment); CD and IoU after ICP alignment, like the other benchmarks.
 
     python benchmarks/hidden_handles.py [--shapes covered_plate long_tunnel_plate mug shared:boot] [--res 256] [--out docs]
+
+(`--shapes perforated_plate wheel --res 128 --grid 160` for the two added shapes.)
 
 Writes OUT/hidden_handles.{json,md,png}.
 """
@@ -37,7 +41,7 @@ sys.path.insert(0, str(HERE))
 def load(spec: str):
     import jaxgenus as jg
 
-    if spec in ("covered_plate", "long_tunnel_plate", "mug"):
+    if spec in ("covered_plate", "long_tunnel_plate", "perforated_plate", "mug", "wheel"):
         import _hidden
 
         v, f, genus = getattr(_hidden, spec)()

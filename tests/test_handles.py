@@ -215,3 +215,48 @@ def test_the_verdict_names_the_holes_a_result_lacks(plate_scene):
     assert "genus may be 4" in why
     clean = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"], max_tries=CHECK_TRIES)
     assert holes_not_had(clean, 1) == ""
+
+
+def test_a_given_genus_tests_as_many_candidates_as_the_estimate(plate_scene, monkeypatch):
+    """With the count given, a hole ranked below many stronger disagreements (here six decoy
+    patches under the base, where a cut reaches the tunnel and raises the loss) is still found:
+    the same candidates are tested as without a count, not only the `2 count + 4` strongest."""
+    from jaxgenus.pipeline import _handles
+
+    fit_v, fit_f = plate_scene["fit"]
+    real = _handles.handle_candidates(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"])
+    decoys = [_handles.HandleCandidate(centre=np.array([x, 0.0, -0.4]), normal=np.array([0.0, 0.0, -1.0]),
+                                       radius=0.06, score=1.0 + x, points=None, misfit=0.0)
+              for x in np.linspace(-0.7, 0.7, 6)]
+    z_bottom = float(fit_v[:, 2].min())
+    decoys = [d._replace(centre=np.array([d.centre[0], 0.0, z_bottom])) for d in decoys]
+    monkeypatch.setattr(_handles, "handle_candidates", lambda *a, **k: decoys + real)
+    v, f, opened = jg.pipeline.open_handles(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], 1)
+    assert len(opened) == 1 and opened[0]["cut"] == "hole", opened
+    assert opened[0]["centre"][2] > 0.0  # on the plate's top, not under the base
+
+
+def test_what_the_silhouettes_show_empty_is_cut_as_it_is():
+    """A fit that spans a hole some silhouette sees through (a washer's hole filled) has a part
+    outside the silhouettes' visual hull: that part is cut whole, one handle where the object has
+    it (not several tunnels and holes in pieces), and it explains the normal patches there."""
+    import manifold3d
+    import trimesh
+
+    def washer(filled):
+        s = manifold3d.Manifold.cylinder(0.4, 1.0, 1.0, 64).translate((0.0, 0.0, -0.2))
+        if not filled:
+            s = s - manifold3d.Manifold.cylinder(0.6, 0.45, 0.45, 48).translate((0.0, 0.0, -0.3))
+        m = s.rotate((30.0, 0.0, 0.0)).to_mesh()
+        return np.asarray(m.vert_properties, np.float64)[:, :3], np.asarray(m.tri_verts, np.int64)
+
+    v, f = washer(False)
+    fit_v, fit_f = trimesh.remesh.subdivide_to_size(*washer(True), 0.1)
+    cams = jg.sphere_cameras(24, radius=3.0, fov_deg=40.0, resolution=64)
+    truth = jg.Mesh.from_numpy(v.astype(np.float32), f.astype(np.int32))
+    found = jg.pipeline.hole_tests(fit_v, fit_f, cams, raycast(cams, truth), min_radius=0.03)
+    assert [r["cut"] for r in found.opened] == ["carve"], found.tested
+    assert found.tested[0]["cut"] == "carve" and found.tested[0]["change"] < -0.5
+    assert found.unexplained < 0.05
+    mesh = jg.Mesh.from_numpy(found.vertices.astype(np.float32), found.faces.astype(np.int32))
+    assert jg.metrics.handle_placement(truth, mesh, resolution=96, genus=1).placed

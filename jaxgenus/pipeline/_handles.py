@@ -14,7 +14,11 @@ a disc (centre, normal, radius from its area).
 keeps a cut only when it adds exactly one handle, keeps one piece and lowers
 the image loss (normal error plus silhouette error, rendered in every view):
 
-- tunnels first: two patches that face away from each other, each within 40
+- free space first: the parts of the fit outside the silhouettes' visual hull
+  without a closing, on a grid of about a pixel (a hole some silhouette sees
+  through, too thin to outlast the closings that clear carving's spurious tunnels:
+  a slot under an arch, a bent tunnel), each cut as it is;
+- then tunnels: two patches that face away from each other, each within 40
   degrees of the straight path between them, may be the mouths of one tunnel
   (of any length and direction, longer than any cut from one side); the fit
   fills it, so a straight prism is subtracted from mouth to mouth, its
@@ -219,6 +223,48 @@ def _tunnel_cut(solid, a: HandleCandidate, b: HandleCandidate, *, max_angle_deg:
     return cuts
 
 
+#: The finest grid (cells along the hull's longest side) on which the silhouettes' free space is
+#: carved from a fit (`_carved_parts`): about a pixel of 128^2 images; finer grids cost more than
+#: the cut they sharpen.
+CARVE_GRID = 128
+
+
+def _carved_parts(solid, cams: Cameras, targets: np.ndarray, pixel: float) -> list:
+    """The parts of `solid` that the silhouettes show empty, largest first: outside their visual
+    hull without a closing, on a grid of about a `pixel` (`CARVE_GRID` cells at most), each larger
+    than a cell. A fit that spans a hole some silhouette sees through fills it with such a part,
+    whatever the hole's shape (a slot under an arch, a bent tunnel); so does a fit that bulges
+    past a silhouette (then cutting the part adds no handle)."""
+    import manifold3d
+
+    from jaxgenus.capture import hull_occupancy, visual_hull, visual_hull_bounds
+
+    alpha = targets[..., 3]
+    lo, hi = visual_hull_bounds(alpha, cams)
+    extent = float((hi - lo).max())
+    resolution = int(np.clip(np.ceil(extent / pixel), 64, CARVE_GRID)) if pixel > 0 else 96
+    occupancy = hull_occupancy(alpha, cams, resolution=resolution, bounds=(lo, hi))
+    hv, hf = visual_hull(alpha, cams, occupancy=occupancy).to_numpy()
+    hull = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(hv, np.float32),
+                                               tri_verts=np.asarray(hf, np.uint32)))
+    parts = [p for p in (solid - hull).decompose() if p.volume() > occupancy.cell ** 3]
+    return sorted(parts, key=lambda p: -p.volume())
+
+
+def _carve_cut(solid, part):
+    """`(record, points, cut)`: `solid` without `part` (grown 5 % about its centre, so that the cut
+    clears the surface it came from) when that adds exactly one handle and keeps one piece; else None."""
+    points = np.asarray(part.to_mesh().vert_properties, np.float64)[:, :3]
+    centre = points.mean(0)
+    tool = part.translate(tuple(-centre)).scale((1.05, 1.05, 1.05)).translate(tuple(centre))
+    cut = solid - tool
+    if cut.genus() != solid.genus() + 1 or len(cut.decompose()) != 1:
+        return None
+    record = {"cut": "carve", "centre": centre.tolist(), "radius": float(np.cbrt(0.75 * part.volume() / np.pi)),
+              "depth": float(np.ptp(points, axis=0).max())}
+    return record, points, cut
+
+
 def _tunnel_pairs(candidates: list[HandleCandidate]) -> list[tuple[int, int]]:
     """Index pairs `(entry, exit)` of candidates that may be the two mouths of one tunnel
     (facing away from each other), strongest first."""
@@ -241,12 +287,12 @@ class HoleTests(NamedTuple):
     """What `hole_tests` found: the cut surface, the cuts kept and every cut tested.
 
     `opened`: per kept cut, a record as `open_handles` returns it. `tested`: per candidate
-    tested with at least one cut that adds exactly one handle, `{"centre", "kept", "change",
+    tested with at least one cut that adds exactly one handle, `{"centre", "cut", "kept", "change",
     "better", "worse", "gain", "rise", "misfit"}`: the best cut's relative change of the image loss
     (negative: lower), the number of views in which it lowered and raised the loss, and the sums
     of those drops and rises (relative to the loss), the candidate's `misfit` share. A real hole lowers it in the views that see
     the hole; a cut where there is none shows background or a wall in some views and raises it
-    there. `unexplained`: the largest share of the fit's normal misfit on one candidate patch
+    there. A kept free-space cut explains the patches it reaches. `unexplained`: the largest share of the fit's normal misfit on one candidate patch
     that no kept cut explains (tested or not): a disagreement the tests leave open.
     """
 
@@ -263,10 +309,12 @@ def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tri
 
     Returns `(vertices, faces, records)`: the cut surface (the input when nothing
     was opened) and per opened handle `{"cut", "centre", "normal", "radius", "depth",
-    "loss_before", "loss_after"}`: `cut` is `"tunnel"` (then `centre` and `"end"` are
+    "loss_before", "loss_after"}`: `cut` is `"carve"` (a part of the fit the silhouettes
+    show empty: `centre` its centre, `radius` that of a ball of its volume, `depth` its
+    longest extent), `"tunnel"` (then `centre` and `"end"` are
     its mouths, `normal` its direction, `depth` its length, `radius` that of a
     disc of its cross-section's area) or `"hole"`. The `max_tries` strongest candidates are used (default
-    `2 count + 4`); `depths` are the hole depths tried (default 0.05 to 1.0).
+    as `hole_tests`); `depths` are the hole depths tried (default 0.05 to 1.0).
     """
     if isinstance(count, bool) or int(count) != count or count < 0:
         raise ValueError(f"count: expected a number of handles >= 0, got {count!r}")
@@ -275,11 +323,14 @@ def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tri
 
 
 def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None, *,
-               max_tries: int | None = None, depths=None, min_radius: float = 0.0) -> HoleTests:
+               max_tries: int | None = None, depths=None, min_radius: float = 0.0,
+               free_space: bool = True) -> HoleTests:
     """Test cuts where the images show holes and keep those that lower the image loss (module
     doc), up to `count` (None: as many as the images confirm). The `max_tries` strongest
-    candidates are tested (default `2 count + 4`; `UNBOUNDED_TRIES` when `count` is None).
-    Cuts narrower than `min_radius` (the images' pixel: a hole they cannot show) are not tried."""
+    candidates are tested (default `UNBOUNDED_TRIES`, or `2 count + 4` when that is more: the
+    same candidates whether the genus is given or estimated).
+    Cuts narrower than `min_radius` (the images' pixel: a hole they cannot show) are not tried.
+    `free_space=False`: no cut of what the silhouettes show empty (only the normal images' patches)."""
     import manifold3d
 
     if count is not None and (isinstance(count, bool) or int(count) != count or count < 0):
@@ -295,7 +346,7 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
     hole_scales = (1.0, 0.75, 0.5)
     found = handle_candidates(v, f, cams, targets)
     if max_tries is None:
-        max_tries = UNBOUNDED_TRIES if count is None else 2 * count + 4
+        max_tries = UNBOUNDED_TRIES if count is None else max(UNBOUNDED_TRIES, 2 * count + 4)
     candidates = found[:max_tries]
     limit = len(candidates) if count is None else count
     per_view = view_losses(v, f, cams, targets)
@@ -320,7 +371,7 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         delta = after - per_view
         tol = 1e-6 * max(loss, 1e-12)
         kept = float(after.mean()) < loss
-        tested.append({"centre": np.asarray(centre, float).tolist(), "kept": kept,
+        tested.append({"centre": np.asarray(centre, float).tolist(), "cut": best[4]["cut"], "kept": kept,
                        "change": float(after.mean() / max(loss, 1e-12) - 1.0),
                        "better": int((delta < -tol).sum()), "worse": int((delta > tol).sum()),
                        "gain": float(-delta[delta < 0].sum() / max(loss, 1e-12)),
@@ -333,6 +384,16 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         return True
 
     used = set()
+    for part in _carved_parts(solid, cams, targets, min_radius)[:max_tries] if free_space else ():
+        if len(records) == limit:
+            break
+        hit = _carve_cut(solid, part)
+        if hit is None:
+            continue
+        record, points, cut = hit
+        near = [i for i, c in enumerate(found) if cKDTree(points).query(c.centre)[0] <= c.radius]
+        if keep([(cut, record)], record["centre"], sum(found[i].misfit for i in near)):
+            used.update(near)
     for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
         if len(records) == limit:
             break

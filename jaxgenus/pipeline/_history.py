@@ -156,10 +156,12 @@ class HandleRecord(_Readable):
     Attributes:
         source: `"hull"` (the visual hull has it), `"images"` (opened where the images show a
             hole), `"drilled"` (a small tunnel at a spread-out site), `"primitive"` or `"sphere"`.
-        cut: `"hole"` (a cylinder into the surface at one patch) or `"tunnel"` (a straight
-            tunnel between two patches, its mouths), `"images"` only.
+        cut: `"carve"` (a part of the fit the silhouettes show empty), `"hole"` (a cylinder
+            into the surface at one patch) or `"tunnel"` (a straight tunnel between two patches,
+            its mouths), `"images"` only.
         centre, radius, depth: the cut that opened it (`"images"` only; user units): for a
-            tunnel, its first mouth, radius of a disc of its cross-section's area, and length.
+            tunnel, its first mouth, radius of a disc of its cross-section's area, and length;
+            for a carve, its centre, the radius of a ball of its volume, its longest extent.
         end: a tunnel's other mouth (user units).
         loss_before, loss_after: the image loss before and after that cut (`"images"` only).
     """

@@ -116,7 +116,9 @@ def _with_holes(setup: Setup, rec: Reconstruction, key, index: FitIndex, t0: flo
     v, f = rec.mesh.to_numpy()
     v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
     try:
-        tests = hole_tests(v, f, *evidence_level(setup), min_radius=evidence_pixel(setup))
+        # free space only where the silhouettes agree on the fit's handles: a cut there counts one more
+        tests = hole_tests(v, f, *evidence_level(setup), min_radius=evidence_pixel(setup),
+                           free_space=hull.agreement >= 1.0)
     except ValueError:  # not a manifold solid to cut
         tests = HoleTests(v, f, [], [])
     est = images_estimate(hull, tests, lambda p: p * frame.scale + frame.centre)
@@ -278,7 +280,8 @@ def _topology_checked(rec: Reconstruction, setup: Setup, say: Callable[[str], No
     v, f = rec.mesh.to_numpy()
     v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
     try:
-        tests = hole_tests(v, f, *evidence_level(setup), max_tries=CHECK_TRIES, min_radius=evidence_pixel(setup))
+        tests = hole_tests(v, f, *evidence_level(setup), max_tries=CHECK_TRIES, min_radius=evidence_pixel(setup),
+                           free_space=False)
     except ValueError:  # not a manifold solid to cut: nothing to test
         return rec
     why = holes_not_had(tests, rec.genus, lambda p: p * frame.scale + frame.centre)

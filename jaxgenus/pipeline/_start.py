@@ -264,7 +264,8 @@ def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOp
     A mesh with sharp creases (a boolean cut) can make the adaptive remesher refine into
     the face budget and stop there with slivers; then (more than 1 % of the faces under 5
     degrees, or the budget reached) it is remeshed again at 1.25x, 1.5625x... the edge
-    length, up to three times; the best shaped valid remesh is returned."""
+    length, up to three times; the best shaped valid remesh below the budget is returned (one
+    at the budget only when none is below it: the fit's remeshes could not refine it)."""
     best = None
     for attempt in range(4):
         m, _ = remesh(mesh, RemeshOptions(target_edge_length=target * 1.25**attempt, iterations=5 if attempt == 0 else 10,
@@ -272,9 +273,10 @@ def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOp
         v, f = m.to_numpy()
         if len(f) > options.face_budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
             continue
-        slivers = _sliver_share(v, f)
-        if best is None or slivers < best[0]:
-            best = (slivers, v, f)
+        rank = (len(f) >= 0.98 * options.face_budget, _sliver_share(v, f))
+        if best is None or rank < best[0]:
+            best = (rank, v, f)
+        slivers = rank[1]
         if slivers <= 0.01 and len(f) < 0.98 * options.face_budget:
             break
     if best is None:

@@ -169,8 +169,11 @@ def estimate_line(hull: GenusEstimate, est: GenusEstimate, seconds: float) -> st
     kept = sum(h["kept"] for h in est.holes)
     tested = len(est.holes)
     if est.cue == "images":
-        what = (f"{kept} hole{'s' if kept != 1 else ''} that no silhouette shows confirmed in the normal images "
-                f"(of {tested} tested): genus {hull.genus} -> {est.genus}, decided by the images")
+        carved = sum(h["kept"] and h.get("cut") == "carve" for h in est.holes)
+        how = (f"; {carved} of them where the silhouettes show empty space at a pixel's grid, too thin for the "
+               "closings" if carved else "")
+        what = (f"{kept} hole{'s' if kept != 1 else ''} the visual hull does not count confirmed in the normal images "
+                f"(of {tested} tested{how}): genus {hull.genus} -> {est.genus}, decided by the images")
     elif tested:
         what = f"none of {tested} hole-shaped disagreements of the normal images lowered the loss: genus {est.genus} stands"
     else:
