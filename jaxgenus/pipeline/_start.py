@@ -261,27 +261,36 @@ def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOp
     """`mesh` remeshed to edge length `target` within `options.face_budget`, padded to its
     capacity bucket; None unless the result is one closed piece of genus `genus`.
 
-    A mesh with sharp creases (a boolean cut) can make the adaptive remesher refine into
-    the face budget and stop there with slivers; then (more than 1 % of the faces under 5
-    degrees, or the budget reached) it is remeshed again at 1.25x, 1.5625x... the edge
-    length, up to three times; the best shaped valid remesh below the budget is returned (one
-    at the budget only when none is below it: the fit's remeshes could not refine it)."""
-    best = None
+    The remesh runs without a face cap: a remesher that stops at its cap part way through a
+    split pass leaves long edges that block the collapses, and a start full of slivers (a
+    boolean cut's flat walls at the first edge length can need several times the budget).
+    When the result has more faces than the budget, the edge length is raised by the square
+    root of the excess (the faces of a surface go as its edge length to the power -2) and
+    the remesh is run again. A mesh with sharp creases (a boolean cut) may still come out with
+    slivers; then (more than 1 % of the faces under 5 degrees) it is remeshed again at 1.25x
+    the edge length. Up to four remeshes; the best shaped valid one below the budget is
+    returned, or, when none is, the input remeshed at the budget."""
+    budget, best, edge = options.face_budget, None, target
     for attempt in range(4):
-        m, _ = remesh(mesh, RemeshOptions(target_edge_length=target * 1.25**attempt, iterations=5 if attempt == 0 else 10,
-                                          max_faces=options.face_budget))
+        m, _ = remesh(mesh, RemeshOptions(target_edge_length=edge, iterations=5 if attempt == 0 else 10, max_faces=None))
         v, f = m.to_numpy()
-        if len(f) > options.face_budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+        if len(f) > budget:
+            edge *= max(1.25, float(np.sqrt(len(f) / (0.9 * budget))))
             continue
-        rank = (len(f) >= 0.98 * options.face_budget, _sliver_share(v, f))
-        if best is None or rank < best[0]:
-            best = (rank, v, f)
-        slivers = rank[1]
-        if slivers <= 0.01 and len(f) < 0.98 * options.face_budget:
-            break
+        if euler_characteristic(m) == 2 - 2 * genus and connected_components(m)[0] == 1:
+            slivers = _sliver_share(v, f)
+            if best is None or slivers < best[0]:
+                best = (slivers, v, f)
+            if slivers <= 0.01:
+                break
+        edge *= 1.25
     if best is None:
-        return None
-    return Mesh.from_numpy(best[1].astype(np.float32), best[2], capacity=capacity_bucket(options.face_budget))
+        m, _ = remesh(mesh, RemeshOptions(target_edge_length=edge, iterations=10, max_faces=budget))
+        v, f = m.to_numpy()
+        if len(f) > budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
+            return None
+        best = (None, v, f)
+    return Mesh.from_numpy(best[1].astype(np.float32), best[2], capacity=capacity_bucket(budget))
 
 
 def _primitive_start(genus: int, lo, hi, options: ReconstructOptions) -> Mesh:
