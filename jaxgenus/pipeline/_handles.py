@@ -277,6 +277,17 @@ def _tunnel_pairs(candidates: list[HandleCandidate]) -> list[tuple[int, int]]:
     return sorted(pairs, key=lambda p: -(candidates[p[0]].score + candidates[p[1]].score))
 
 
+def _test_record(centre, cut: str, after: np.ndarray, before: np.ndarray, misfit: float) -> dict:
+    """One entry of `HoleTests.tested`: a cut kept when it lowers the mean of the per-view losses."""
+    loss = max(float(before.mean()), 1e-12)
+    delta = after - before
+    tol = 1e-6 * loss
+    return {"centre": np.asarray(centre, float).tolist(), "cut": cut, "kept": float(after.mean()) < float(before.mean()),
+            "change": float(after.mean() / loss - 1.0), "better": int((delta < -tol).sum()),
+            "worse": int((delta > tol).sum()), "gain": float(-delta[delta < 0].sum() / loss),
+            "rise": float(delta[delta > 0].sum() / loss), "misfit": float(misfit)}
+
+
 #: Candidates tested when `hole_tests` opens as many holes as the images confirm: each costs up to
 #: 60 booleans and a render of every view (and each pair of them a tunnel test), so only the
 #: strongest; the holes an object shows are the strongest candidates (docs/hidden_handles.md).
@@ -368,15 +379,8 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         if best is None:
             return False
         after = best[0]
-        delta = after - per_view
-        tol = 1e-6 * max(loss, 1e-12)
-        kept = float(after.mean()) < loss
-        tested.append({"centre": np.asarray(centre, float).tolist(), "cut": best[4]["cut"], "kept": kept,
-                       "change": float(after.mean() / max(loss, 1e-12) - 1.0),
-                       "better": int((delta < -tol).sum()), "worse": int((delta > tol).sum()),
-                       "gain": float(-delta[delta < 0].sum() / max(loss, 1e-12)),
-                       "rise": float(delta[delta > 0].sum() / max(loss, 1e-12)), "misfit": float(misfit)})
-        if not kept:
+        tested.append(_test_record(centre, best[4]["cut"], after, per_view, misfit))
+        if not tested[-1]["kept"]:
             return False
         records.append({**best[4], "loss_before": loss, "loss_after": float(after.mean())})
         per_view, solid, v, f = best[:4]
@@ -388,11 +392,8 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         if len(records) == limit:
             break
         hit = _carve_cut(solid, part)
-        if hit is None:
-            continue
-        record, points, cut = hit
-        near = [i for i, c in enumerate(found) if cKDTree(points).query(c.centre)[0] <= c.radius]
-        if keep([(cut, record)], record["centre"], sum(found[i].misfit for i in near)):
+        near = [] if hit is None else [i for i, c in enumerate(found) if cKDTree(hit[1]).query(c.centre)[0] <= c.radius]
+        if hit is not None and keep([(hit[2], hit[0])], hit[0]["centre"], sum(found[i].misfit for i in near)):
             used.update(near)
     for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
         if len(records) == limit:

@@ -261,35 +261,45 @@ def remeshed_start(mesh: Mesh, genus: int, target: float, options: ReconstructOp
     """`mesh` remeshed to edge length `target` within `options.face_budget`, padded to its
     capacity bucket; None unless the result is one closed piece of genus `genus`.
 
-    The remesh runs without a face cap: a remesher that stops at its cap part way through a
-    split pass leaves long edges that block the collapses, and a start full of slivers (a
-    boolean cut's flat walls at the first edge length can need several times the budget).
-    When the result has more faces than the budget, the edge length is raised by the square
-    root of the excess (the faces of a surface go as its edge length to the power -2) and
-    the remesh is run again. A mesh with sharp creases (a boolean cut) may still come out with
-    slivers; then (more than 1 % of the faces under 5 degrees) it is remeshed again at 1.25x
-    the edge length. Up to four remeshes; the best shaped valid one below the budget is
-    returned, or, when none is, the input remeshed at the budget."""
-    budget, best, edge = options.face_budget, None, target
-    for attempt in range(4):
-        m, _ = remesh(mesh, RemeshOptions(target_edge_length=edge, iterations=5 if attempt == 0 else 10, max_faces=None))
-        v, f = m.to_numpy()
-        if len(f) > budget:
-            edge *= max(1.25, float(np.sqrt(len(f) / (0.9 * budget))))
-            continue
-        if euler_characteristic(m) == 2 - 2 * genus and connected_components(m)[0] == 1:
-            slivers = _sliver_share(v, f)
-            if best is None or slivers < best[0]:
-                best = (slivers, v, f)
-            if slivers <= 0.01:
-                break
-        edge *= 1.25
-    if best is None:
-        m, _ = remesh(mesh, RemeshOptions(target_edge_length=edge, iterations=10, max_faces=budget))
+    A mesh with sharp creases or large flat walls (a boolean cut) can need several times the
+    budget at `target`; the remesher, capped part way through a split pass, then leaves long
+    edges that block the collapses and a start full of slivers. So when the capped remesh has
+    more than 1 % of its faces under 5 degrees or reaches the budget, the mesh is remeshed
+    without a cap at the edge length at which its area holds 4/5 of the budget (not shorter
+    than `target`), longer by the square root of any excess, or by 1.25x while slivers remain;
+    up to three more times. The best shaped valid remesh below the budget is returned (one at
+    the budget only when none is below it). The edge lengths tried after the first depend on the
+    mesh and the budget alone: where the budget, not `target`, limits the detail, images of two
+    sizes give the same start."""
+    budget, best = options.face_budget, None
+
+    def scored(m):
+        nonlocal best
         v, f = m.to_numpy()
         if len(f) > budget or euler_characteristic(m) != 2 - 2 * genus or connected_components(m)[0] != 1:
             return None
-        best = (None, v, f)
+        rank = (len(f) >= 0.98 * budget, _sliver_share(v, f))
+        if best is None or rank < best[0]:
+            best = (rank, v, f)
+        return rank
+
+    rank = scored(remesh(mesh, RemeshOptions(target_edge_length=target, iterations=5, max_faces=budget))[0])
+    if rank is None or rank[0] or rank[1] > 0.01:
+        v, f = mesh.to_numpy()
+        area = 0.5 * float(np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1).sum())
+        edge = max(target, float(np.sqrt(4.0 * area / (np.sqrt(3.0) * 0.8 * budget))))
+        for _ in range(3):
+            m, _ = remesh(mesh, RemeshOptions(target_edge_length=edge, iterations=10, max_faces=None))
+            faces = int(m.to_numpy()[1].shape[0])
+            if faces > budget:
+                edge *= float(np.sqrt(faces / (0.8 * budget)))
+                continue
+            rank = scored(m)
+            if rank is not None and rank[1] <= 0.01:
+                break
+            edge *= 1.25
+    if best is None:
+        return None
     return Mesh.from_numpy(best[1].astype(np.float32), best[2], capacity=capacity_bucket(budget))
 
 
