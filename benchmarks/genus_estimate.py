@@ -61,8 +61,8 @@ def row(label: str, genus: int, images, cams, gt=None, whole: bool = False) -> d
     out = dict(shape=label, genus=genus, estimate=e.genus, agreement=e.agreement, plausible=list(e.plausible),
                cue=e.cue, holes=f"{sum(h['kept'] for h in e.holes)}/{len(e.holes)}",
                grids={str(k): v for k, v in grids.items()}, seconds=time.perf_counter() - t0)
-    print(json.dumps(out), flush=True)
     if whole and gt is not None:
+        print(json.dumps(out), flush=True)  # the estimate before the (long) reconstruction
         t0 = time.perf_counter()
         rec = jg.reconstruct(images, cams, genus if whole == "given" else None)
         p = jg.metrics.handle_placement(gt, rec.mesh, resolution=160)

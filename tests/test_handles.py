@@ -209,11 +209,13 @@ def test_the_verdict_names_the_holes_a_result_lacks(plate_scene):
     from jaxgenus.pipeline._start_stage import CHECK_TRIES, holes_not_had
 
     fit_v, fit_f = plate_scene["fit"]
-    tests = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], max_tries=CHECK_TRIES)
+    tests = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["holes"], max_tries=CHECK_TRIES,
+                                     free_space=False)
     why = holes_not_had(tests, 1, lambda p: p * 10.0)
     assert why.startswith("the images show 3 holes that the result (genus 1) does not have"), why
     assert "genus may be 4" in why
-    clean = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"], max_tries=CHECK_TRIES)
+    clean = jg.pipeline.hole_tests(fit_v, fit_f, plate_scene["cams"], plate_scene["no_holes"], max_tries=CHECK_TRIES,
+                                     free_space=False)
     assert holes_not_had(clean, 1) == ""
 
 

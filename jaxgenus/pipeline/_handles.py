@@ -240,11 +240,17 @@ def _carved_parts(solid, cams: Cameras, targets: np.ndarray, pixel: float) -> li
     from jaxgenus.capture import hull_occupancy, visual_hull, visual_hull_bounds
 
     alpha = targets[..., 3]
-    lo, hi = visual_hull_bounds(alpha, cams)
+    try:
+        lo, hi = visual_hull_bounds(alpha, cams)
+    except ValueError:  # no hull at this grid: nothing the silhouettes show empty can be cut
+        return []
     extent = float((hi - lo).max())
     resolution = int(np.clip(np.ceil(extent / pixel), 64, CARVE_GRID)) if pixel > 0 else 96
     occupancy = hull_occupancy(alpha, cams, resolution=resolution, bounds=(lo, hi))
-    hv, hf = visual_hull(alpha, cams, occupancy=occupancy).to_numpy()
+    try:
+        hv, hf = visual_hull(alpha, cams, occupancy=occupancy).to_numpy()
+    except ValueError:
+        return []
     hull = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(hv, np.float32),
                                                tri_verts=np.asarray(hf, np.uint32)))
     parts = [p for p in (solid - hull).decompose() if p.volume() > occupancy.cell ** 3]
@@ -260,7 +266,7 @@ def _carve_cut(solid, part):
     cut = solid - tool
     if cut.genus() != solid.genus() + 1 or len(cut.decompose()) != 1:
         return None
-    record = {"cut": "carve", "centre": centre.tolist(), "radius": float(np.cbrt(0.75 * part.volume() / np.pi)),
+    record = {"cut": "carve", "centre": centre.tolist(), "normal": None, "radius": float(np.cbrt(0.75 * part.volume() / np.pi)),
               "depth": float(np.ptp(points, axis=0).max())}
     return record, points, cut
 
@@ -315,21 +321,23 @@ class HoleTests(NamedTuple):
 
 
 def open_handles(vertices, faces, cams: Cameras, targets, count: int, *, max_tries: int | None = None,
-                 depths=None):
+                 depths=None, min_radius: float = 0.0, free_space: bool = True):
     """Open up to `count` handles where the images show holes (module doc).
 
     Returns `(vertices, faces, records)`: the cut surface (the input when nothing
     was opened) and per opened handle `{"cut", "centre", "normal", "radius", "depth",
     "loss_before", "loss_after"}`: `cut` is `"carve"` (a part of the fit the silhouettes
-    show empty: `centre` its centre, `radius` that of a ball of its volume, `depth` its
+    show empty: `centre` its centre, `normal` None, `radius` that of a ball of its volume, `depth` its
     longest extent), `"tunnel"` (then `centre` and `"end"` are
     its mouths, `normal` its direction, `depth` its length, `radius` that of a
     disc of its cross-section's area) or `"hole"`. The `max_tries` strongest candidates are used (default
-    as `hole_tests`); `depths` are the hole depths tried (default 0.05 to 1.0).
+    as `hole_tests`); `depths` are the hole depths tried (default 0.05 to 1.0); `min_radius`,
+    `free_space` as in `hole_tests`.
     """
     if isinstance(count, bool) or int(count) != count or count < 0:
         raise ValueError(f"count: expected a number of handles >= 0, got {count!r}")
-    tests = hole_tests(vertices, faces, cams, targets, int(count), max_tries=max_tries, depths=depths)
+    tests = hole_tests(vertices, faces, cams, targets, int(count), max_tries=max_tries, depths=depths,
+                       min_radius=min_radius, free_space=free_space)
     return tests.vertices, tests.faces, tests.opened
 
 
@@ -359,7 +367,7 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
     if max_tries is None:
         max_tries = UNBOUNDED_TRIES if count is None else max(UNBOUNDED_TRIES, 2 * count + 4)
     candidates = found[:max_tries]
-    limit = len(candidates) if count is None else count
+    limit = None if count is None else count  # None: every cut the images confirm
     per_view = view_losses(v, f, cams, targets)
     loss = float(np.mean(per_view))
     records, tested = [], []
@@ -387,13 +395,17 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         loss = float(per_view.mean())
         return True
 
-    used = set()
-    for part in _carved_parts(solid, cams, targets, min_radius)[:max_tries] if free_space else ():
-        if len(records) == limit:
+    used, tries = set(), 0
+    for part in _carved_parts(solid, cams, targets, min_radius) if free_space else ():
+        if len(records) == limit or tries == max_tries:
             break
-        hit = _carve_cut(solid, part)
-        near = [] if hit is None else [i for i, c in enumerate(found) if cKDTree(hit[1]).query(c.centre)[0] <= c.radius]
-        if hit is not None and keep([(hit[2], hit[0])], hit[0]["centre"], sum(found[i].misfit for i in near)):
+        hit = _carve_cut(solid, part)  # a bulge past a silhouette adds no handle and is not a try
+        if hit is None:
+            continue
+        tries += 1
+        tree = cKDTree(hit[1])
+        near = [i for i, c in enumerate(found) if tree.query(c.centre)[0] <= c.radius]
+        if keep([(hit[2], hit[0])], hit[0]["centre"], sum(found[i].misfit for i in near)):
             used.update(near)
     for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
         if len(records) == limit:

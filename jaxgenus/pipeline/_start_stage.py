@@ -97,7 +97,7 @@ def _image_handles(setup: Setup, start: Start, fit_genus: Callable, edge: float)
     v, f = pre.mesh.to_numpy()
     v = (np.asarray(v, np.float64) - frame.centre) / frame.scale
     try:
-        v, f, opened = open_handles(v, f, *evidence_level(setup), start.tunnels)
+        v, f, opened = open_handles(v, f, *evidence_level(setup), start.tunnels, min_radius=evidence_pixel(setup))
     except ValueError:  # the fit is not a manifold solid to cut: drill as before
         opened = []
     mesh = Mesh.from_numpy(np.asarray(v, np.float32), np.asarray(f, np.int32))
