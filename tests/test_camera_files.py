@@ -518,6 +518,11 @@ def test_middlebury_par(tmp_path):
     cams, names = load_cameras(path)
     assert names == [r[0] for r in rows] and (cams.height, cams.width) == (H, W)
     check_projection(cams, [expected_opencv(K @ np.c_[R, t]) for _, K, R, t in rows])
+    folder = tmp_path / "capture"  # a capture folder: the images in image/ beside the file
+    (folder / "image").mkdir(parents=True)
+    Image.new("RGB", (W, H)).save(folder / "image" / rows[0][0])
+    cams, _ = load_cameras(write_par(folder / "temple_par.txt", rows))
+    assert (cams.height, cams.width) == (H, W)
 
 
 def test_middlebury_par_refusals(tmp_path):

@@ -139,9 +139,9 @@ def read_middlebury(path: Path, image_size):
     if count != len(rows):
         raise ValueError(f"{path}: the first line says {count} images but {len(rows)} follow")
 
-    def probe():
-        f = path.parent / rows[0][1][0] if rows else None
-        return image_file_size(f) if f is not None and f.is_file() else None
+    def probe():  # the first named image, beside the file or in image/ or images/ (a capture folder)
+        named = [path.parent / d / rows[0][1][0] for d in ("", "image", "images")] if rows else []
+        return next((image_file_size(f) for f in named if f.is_file()), None)
 
     height, width = resolve_size(path, None, image_size, probe)
     cams = []
