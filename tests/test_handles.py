@@ -262,3 +262,7 @@ def test_what_the_silhouettes_show_empty_is_cut_as_it_is():
     assert found.unexplained < 0.05
     mesh = jg.Mesh.from_numpy(found.vertices.astype(np.float32), found.faces.astype(np.int32))
     assert jg.metrics.handle_placement(truth, mesh, resolution=96, genus=1).placed
+    # where the normal images agree with the fit, free space alone is no sign of a hole: not tried
+    filled = jg.Mesh.from_numpy(*(np.asarray(x, t) for x, t in zip(washer(True), (np.float32, np.int32))))
+    agreeing = np.concatenate([raycast(cams, filled)[..., :3], raycast(cams, truth)[..., 3:]], axis=-1)
+    assert jg.pipeline.hole_tests(fit_v, fit_f, cams, agreeing, min_radius=0.03).tested == []

@@ -17,7 +17,9 @@ the image loss (normal error plus silhouette error, rendered in every view):
 - free space first: the parts of the fit outside the silhouettes' visual hull
   without a closing, on a grid of about a pixel (a hole some silhouette sees
   through, too thin to outlast the closings that clear carving's spurious tunnels:
-  a slot under an arch, a bent tunnel), each cut as it is;
+  a slot under an arch, a bent tunnel), each cut as it is, where it reaches a
+  patch of disagreeing normals (where the normals agree with the fit, the part is
+  carving's noise or a pocket, and a cut there moves the loss by rendering noise);
 - then tunnels: two patches that face away from each other, each within 40
   degrees of the straight path between them, may be the mouths of one tunnel
   (of any length and direction, longer than any cut from one side); the fit
@@ -402,9 +404,11 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         hit = _carve_cut(solid, part)  # a bulge past a silhouette adds no handle and is not a try
         if hit is None:
             continue
-        tries += 1
         tree = cKDTree(hit[1])
         near = [i for i, c in enumerate(found) if tree.query(c.centre)[0] <= c.radius]
+        if not near:  # the normal images agree with the fit there: no sign of a hole, and not a try
+            continue
+        tries += 1
         if keep([(hit[2], hit[0])], hit[0]["centre"], sum(found[i].misfit for i in near)):
             used.update(near)
     for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
