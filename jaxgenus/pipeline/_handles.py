@@ -273,6 +273,12 @@ def _carve_cut(solid, part):
     return record, points, cut
 
 
+def _patches_reached(points: np.ndarray, found: list[HandleCandidate]) -> list[int]:
+    """Indices of the candidate patches `found` whose centre lies within their radius of `points`."""
+    tree = cKDTree(points)
+    return [i for i, c in enumerate(found) if tree.query(c.centre)[0] <= c.radius]
+
+
 def _tunnel_pairs(candidates: list[HandleCandidate]) -> list[tuple[int, int]]:
     """Index pairs `(entry, exit)` of candidates that may be the two mouths of one tunnel
     (facing away from each other), strongest first."""
@@ -402,11 +408,8 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         if len(records) == limit or tries == max_tries:
             break
         hit = _carve_cut(solid, part)  # a bulge past a silhouette adds no handle and is not a try
-        if hit is None:
-            continue
-        tree = cKDTree(hit[1])
-        near = [i for i, c in enumerate(found) if tree.query(c.centre)[0] <= c.radius]
-        if not near:  # the normal images agree with the fit there: no sign of a hole, and not a try
+        near = _patches_reached(hit[1], found) if hit is not None else []
+        if not near:  # nor is a part where the normal images agree with the fit: no sign of a hole
             continue
         tries += 1
         if keep([(hit[2], hit[0])], hit[0]["centre"], sum(found[i].misfit for i in near)):
