@@ -122,9 +122,12 @@ def test_reconstruct_sweeps_photos_when_it_fitted_coarser_images():
     cams = _ring(6, 30.0, 3.5, resolution=256)
     photos = raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.4, albedo=cell_albedo(0.08))
     # two short cycles at 1/2 (a coarse level of 128): the sweep runs at 256^2 after the outline, on the
-    # mesh subdivided until its median edge is at most `depth_edge_px` pixels
+    # mesh subdivided until its median edge is at most `depth_edge_px` pixels. The fit's own photo terms
+    # (photo-consistency, stereo, the fine-texture settings) are tested elsewhere: off here, so the fit
+    # compiles the plain photo program
     opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=5, initial_faces=600, refits=0,
-                                           max_faces=600, detail_faces=0, subdivide=False, depth_edge_px=4.0)
+                                           max_faces=600, detail_faces=0, subdivide=False, depth_edge_px=4.0,
+                                           consistency=0.0, stereo=0.0, fine_texture=False)
     lines = []
     rec = jg.reconstruct(photos, cams, 1, targets="photo", options=opts, key=jax.random.key(0), log=lines.append)
     assert min(r["factor"] for r in rec.history.resolution) > 1
