@@ -486,15 +486,15 @@ def test_optimize_block_compiles_once_per_bucket_and_samples_views():
 
 
 def test_optimize_block_average_is_the_ema_of_the_iterates():
-    """`average` returns the EMA of the iterates; reference: the iterates of shorter
-    blocks from the same state and key (a block's first j steps do not depend on its length)."""
+    """`average` returns the EMA of the iterates; reference: the iterates of one-step blocks
+    chained from the same state and key (a block hands its Adam state and key to the next)."""
     mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
     base = dict(learning_rate=0.05, adam_quantile=1.0, renderer=soft_silhouette, views_per_step=2)
     n, a = 4, 0.7
     start = lambda: jg.optim.init_optimizer_state(mesh, jax.random.key(3))
-    xs = [np.asarray(mesh.vertices, np.float64)]
-    for j in range(1, n + 1):
-        state, _ = jg.optim.optimize_block(start(), cams, targets, n_steps=j, options=jg.OptimizeOptions(**base))
+    xs, state = [np.asarray(mesh.vertices, np.float64)], start()
+    for _ in range(n):
+        state, _ = jg.optim.optimize_block(state, cams, targets, n_steps=1, options=jg.OptimizeOptions(**base))
         xs.append(np.asarray(state.mesh.vertices, np.float64))
     ref = xs[0]
     for x in xs[1:]:

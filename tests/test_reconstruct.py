@@ -270,7 +270,8 @@ def test_tunnels_add_exactly_the_requested_handles_with_little_volume():
 
 def test_same_key_same_result(torus_scene):
     gt, cams, img = torus_scene
-    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=10, initial_faces=600, max_faces=1500)
+    # the options of the start tests above (their programs shared through the compilation cache)
+    opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=5, initial_faces=800, max_faces=3000)
     key = jax.random.key(7)
     a = jg.reconstruct(img, cams, 1, options=opts, key=key)
     b = jg.reconstruct(img, cams, 1, options=opts, key=key)  # the caller's key is not consumed (donated)
