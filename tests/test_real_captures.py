@@ -340,11 +340,17 @@ def test_genus_is_estimated_when_omitted():
     gt = jg.builtin_scene("three_tori").to_trimesh()
     cams = jg.sphere_cameras(24, radius=3.0, fov_deg=40.0, resolution=96)
     images = raycast(cams, gt, supersample=3)
-    rec = jg.reconstruct(images, cams, options=jg.ReconstructOptions(n_cycles=1, steps_per_cycle=5))
+    opts = jg.ReconstructOptions(n_cycles=1, steps_per_cycle=5)
+    rec = jg.reconstruct(images, cams, options=opts)
     estimate = rec.history["genus_estimate"]
     assert len(estimate["evidence"]) == 4 * len(rec.options.hull_resolutions)  # every grid x closings 0-3
     assert estimate["genus"] == 3 and estimate["agreement"] >= 0.5 and 3 in estimate["plausible"], estimate
     assert rec.genus == 3
+    # `genus_estimate` of normal maps gives the same answer through the same code (a first fit, its hole tests)
+    alone = jg.genus_estimate(images, cams, options=opts)
+    assert (alone.genus, alone.agreement, alone.plausible, alone.cue) == (estimate.genus, estimate.agreement,
+                                                                          estimate.plausible, estimate.cue)
+    assert len(alone.holes) == len(estimate.holes)
 
 
 def test_genus_estimate_alone_reads_the_silhouettes_only():
