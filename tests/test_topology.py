@@ -133,3 +133,27 @@ def test_shared_meshes_genus(name, expected):
     assert jg.euler_characteristic(mesh) == _trimesh_chi(v, f) == 2 - 2 * expected
     assert jg.genus(mesh) == expected
     assert jg.is_closed_manifold(mesh)
+
+
+def test_pieces_of_a_solid_are_those_manifold3d_decomposes():
+    """`piece_count` and `pieces_larger_than` label a manifold3d solid's mesh instead of building every
+    piece (`decompose`); against `decompose` on disjoint pieces of three sizes and genera."""
+    import manifold3d
+
+    from jaxgenus.geometry import piece_count, pieces_larger_than
+
+    big = manifold3d.Manifold.cube((2.0, 2.0, 2.0)) - manifold3d.Manifold.cylinder(3.0, 0.4, 0.4, 32).translate((1.0, 1.0, -0.5))
+    ring = manifold3d.Manifold.cylinder(0.5, 1.0, 1.0, 48) - manifold3d.Manifold.cylinder(0.5, 0.6, 0.6, 48)
+    specks = [manifold3d.Manifold.cube((0.05, 0.05, 0.05)).translate((5.0 + i, 0.0, 0.0)) for i in range(5)]
+    solid = big + ring.translate((4.0, 4.0, 0.0))
+    for s in specks:
+        solid = solid + s
+    ref = solid.decompose()
+    assert piece_count(solid) == len(ref) == 7 and piece_count(manifold3d.Manifold()) == 0
+    kept = pieces_larger_than(solid, 0.01)
+    want = sorted([p for p in ref if p.volume() > 0.01], key=lambda p: -p.volume())
+    got = [(p.genus(), p.num_tri()) for p in kept]
+    assert got == [(p.genus(), p.num_tri()) for p in want] and [g for g, _ in got] == [1, 1], got
+    np.testing.assert_allclose([p.volume() for p in kept], [p.volume() for p in want], rtol=1e-6)
+    assert len(kept) == 2 and all(p.status() == manifold3d.Error.NoError for p in kept)
+    assert pieces_larger_than(manifold3d.Manifold(), 0.0) == []

@@ -42,6 +42,8 @@ from jaxgenus.geometry._topology import (
     genus,
     is_closed_manifold,
     mesh_report,
+    piece_count,
+    pieces_larger_than,
 )
 
 __all__ = [
@@ -92,6 +94,8 @@ __all__ = [
     "look_at",
     "mesh_report",
     "phong_subdivision",
+    "piece_count",
+    "pieces_larger_than",
     "normalize_to_unit_sphere",
     "project",
     "remesh",

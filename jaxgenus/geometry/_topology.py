@@ -25,6 +25,8 @@ __all__ = [
     "component_genera",
     "is_closed_manifold",
     "connected_components",
+    "piece_count",
+    "pieces_larger_than",
 ]
 
 # The report's entry names in buffer order, from the one native definition
@@ -169,3 +171,46 @@ def genus(mesh: Mesh) -> int:
     non-manifold or inconsistently oriented meshes rather than return a wrong number.
     """
     return int(sum(component_genera(mesh)))
+
+
+# --- pieces of a manifold3d solid (the hole tests' cuts): labelled on its mesh, not built by decompose()
+
+def _solid_pieces(solid):
+    """`(vertices (V, 3), faces (F, 3), the piece of each face, how many pieces)` of `solid`'s mesh."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components as graph_components
+
+    mesh = solid.to_mesh()
+    v = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+    f = np.asarray(mesh.tri_verts, np.int64).reshape(-1, 3)
+    same = np.arange(len(v))  # vertices a property seam split: one vertex for the labelling
+    same[np.asarray(mesh.merge_from_vert, np.int64)] = np.asarray(mesh.merge_to_vert, np.int64)
+    g = same[f]
+    edges = coo_matrix((np.ones(2 * len(g)), (g[:, [0, 1]].ravel(), g[:, [1, 2]].ravel())), shape=(len(v), len(v)))
+    _, label = graph_components(edges, directed=False)
+    used = np.unique(g)
+    return v, f, label[g[:, 0]], len(np.unique(label[used])) if len(used) else 0
+
+
+def piece_count(solid) -> int:
+    """How many connected pieces `solid` has (`len(solid.decompose())`, without building them)."""
+    return _solid_pieces(solid)[3]
+
+
+def pieces_larger_than(solid, volume: float) -> list:
+    """The pieces of `solid` whose volume exceeds `volume`, as Manifolds, largest first (those of
+    `solid.decompose()`; the smaller ones are never built)."""
+    import manifold3d
+
+    v, f, piece, _ = _solid_pieces(solid)
+    if not len(f):
+        return []
+    p = v[f]
+    signed = np.einsum("ij,ij->i", p[:, 0], np.cross(p[:, 1], p[:, 2])) / 6.0
+    volumes = np.bincount(piece, signed)
+    kept = []
+    for k in np.flatnonzero(volumes > volume):
+        used, local = np.unique(f[piece == k], return_inverse=True)
+        kept.append(manifold3d.Manifold(manifold3d.Mesh(vert_properties=v[used].astype(np.float32),
+                                                        tri_verts=local.reshape(-1, 3).astype(np.uint32))))
+    return sorted(kept, key=lambda m: -m.volume())

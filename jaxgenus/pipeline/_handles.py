@@ -44,7 +44,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from jaxgenus.geometry import Cameras
-from jaxgenus.geometry import Mesh, capacity_bucket
+from jaxgenus.geometry import Mesh, capacity_bucket, piece_count, pieces_larger_than
 from jaxgenus.rendering import render
 
 __all__ = ["HandleCandidate", "HoleTests", "handle_candidates", "hole_tests", "normal_image_loss", "open_handles",
@@ -182,7 +182,7 @@ def _cylinder_cut(solid, candidate: HandleCandidate, depths):
     for depth in depths:
         tool = manifold3d.Manifold.cylinder(float(depth) + 0.1, candidate.radius, candidate.radius, 32)
         cut = solid - tool.transform(frame)
-        if cut.genus() == solid.genus() + 1 and len(cut.decompose()) == 1:
+        if cut.genus() == solid.genus() + 1 and piece_count(cut) == 1:
             return float(depth), cut
     return None
 
@@ -220,7 +220,7 @@ def _tunnel_cut(solid, a: HandleCandidate, b: HandleCandidate, *, max_angle_deg:
     for scale in scales:
         section = shared.translate(tuple(-mid)).scale((scale, scale)).translate(tuple(mid))
         cut = solid - manifold3d.Manifold.extrude(section, length + 0.2).transform(frame)
-        if cut.genus() == solid.genus() + 1 and len(cut.decompose()) == 1:
+        if cut.genus() == solid.genus() + 1 and piece_count(cut) == 1:
             cuts.append((length, float(np.sqrt(section.area() / np.pi)), cut))
     return cuts
 
@@ -255,8 +255,7 @@ def _carved_parts(solid, cams: Cameras, targets: np.ndarray, pixel: float) -> li
         return []
     hull = manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(hv, np.float32),
                                                tri_verts=np.asarray(hf, np.uint32)))
-    parts = [p for p in (solid - hull).decompose() if p.volume() > occupancy.cell ** 3]
-    return sorted(parts, key=lambda p: -p.volume())
+    return pieces_larger_than(solid - hull, occupancy.cell ** 3)
 
 
 def _carve_cut(solid, part):
@@ -266,7 +265,7 @@ def _carve_cut(solid, part):
     centre = points.mean(0)
     tool = part.translate(tuple(-centre)).scale((1.05, 1.05, 1.05)).translate(tuple(centre))
     cut = solid - tool
-    if cut.genus() != solid.genus() + 1 or len(cut.decompose()) != 1:
+    if cut.genus() != solid.genus() + 1 or piece_count(cut) != 1:
         return None
     record = {"cut": "carve", "centre": centre.tolist(), "normal": None, "radius": float(np.cbrt(0.75 * part.volume() / np.pi)),
               "depth": float(np.ptp(points, axis=0).max())}

@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxgenus.geometry import Cameras
 from jaxgenus.capture import hull_occupancy, largest_component, visual_hull
-from jaxgenus.geometry import Mesh, capacity_bucket
+from jaxgenus.geometry import Mesh, capacity_bucket, piece_count
 from jaxgenus.pipeline._history import GenusEstimate, GenusEvidence, HandleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.geometry import genus_primitive
@@ -197,7 +197,7 @@ def drill_tunnels(hull: Mesh, count: int, size: float) -> Mesh | None:
         t /= np.linalg.norm(t)
         # ring plane spanned by the tangent t (local x) and the normal n (local y)
         cut = solid - ring.transform(np.column_stack([t, n, np.cross(t, n), pts[i]]))
-        if cut.genus() == solid.genus() + 1 and len(cut.decompose()) == 1:
+        if cut.genus() == solid.genus() + 1 and piece_count(cut) == 1:
             solid = cut
             added += 1
     if added < count:
