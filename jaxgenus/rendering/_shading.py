@@ -133,6 +133,7 @@ def directional_lighting(direction, ambient: float, model: str = "sh") -> tuple[
     return np.tile(row, (3, 1)), m
 
 
+@jax.jit  # one program, not a dozen eager operations each compiled on first use (the verdict's photo renders)
 def face_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, "3 L"]) -> Float[Array, "F 3"]:
     """Per-face RGB: the mean albedo of the face's corners times `max(0, E(face normal))`."""
     albedo = jnp.asarray(albedo)
@@ -142,6 +143,7 @@ def face_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, 
     return rho * jnp.maximum(irradiance(face_normals(mesh), lighting), 0.0)
 
 
+@jax.jit
 def vertex_colors(mesh: Mesh, albedo: Float[Array, "V 3"], lighting: Float[Array, "3 L"]) -> Float[Array, "V 3"]:
     """Per-vertex RGB: the vertex's albedo times `max(0, E(vertex normal))` (smooth shading)."""
     albedo = jnp.asarray(albedo)
