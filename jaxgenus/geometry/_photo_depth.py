@@ -49,7 +49,8 @@ class PhotoDepthFit(NamedTuple):
 
     Attributes:
         vertices: `(V, 3)` the mesh's vertices moved along their normals (a new array).
-        measured: `(V,)` bool, the vertices whose sweep found a confident best offset (last round).
+        measured: `(V,)` bool, the vertices free to move whose sweep found a confident best offset
+            (last round).
         distance: `(V,)` how far each vertex moved in all (the mesh's units).
         offset_px: the mean |best offset| of the measured vertices in reference pixels, per round.
         ncc_before, ncc_after: the measured vertices' mean NCC at their place and at their best
@@ -85,21 +86,32 @@ def _device_colours(src: np.ndarray):
     return jnp.asarray(out)
 
 
-@jax.jit
-def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok):
-    """NCC `(C, K, D)` of each vertex's reference square against its `K` neighbours on `D` planes
-    along its normal (NaN: no such neighbour or out of its frame), and the reference squares' colour
-    deviation `(C,)`."""
-    _, h, w, _ = colour.shape
+def _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref):
+    """Each vertex's square of reference pixels: its camera-frame position `(C, 3)`, the pixels
+    `(C, P)` x2, their colours `(C, P, 3)` (each channel zero-mean) and the colour deviation `(C,)`."""
     x = jnp.einsum("cij,cj->ci", rot[ref], v - centres[ref])
     pu = (focal[ref, 0] * x[:, 0] / x[:, 2] + centre_px[ref, 0])[:, None] + offsets[None, :, 0]
     pv = (focal[ref, 1] * x[:, 1] / x[:, 2] + centre_px[ref, 1])[:, None] + offsets[None, :, 1]
+    a = _sample(colour, ref[:, None], pu, pv)
+    a = a - a.mean(1, keepdims=True)
+    return x, pu, pv, a, jnp.sqrt((a * a).mean((1, 2)) + 1e-12)
+
+
+@jax.jit
+def _square_spreads(colour, rot, focal, centre_px, centres, offsets, v, ref):
+    """The colour deviation `(C,)` of each vertex's reference square (`_reference_squares`)."""
+    return _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref)[-1]
+
+
+@jax.jit
+def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok):
+    """NCC `(C, K, D)` of each vertex's reference square against its `K` neighbours on `D` planes
+    along its normal (NaN: no such neighbour or out of its frame)."""
+    _, h, w, _ = colour.shape
+    x, pu, pv, a, sa = _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref)
     rays = jnp.stack([(pu - centre_px[ref, 0, None]) / focal[ref, 0, None],
                       (pv - centre_px[ref, 1, None]) / focal[ref, 1, None], jnp.ones_like(pu)], -1)
     rays = jnp.einsum("cji,cpj->cpi", rot[ref], rays)  # (C, P, 3) world directions
-    a = _sample(colour, ref[:, None], pu, pv)  # (C, P, 3), each channel zero-mean over the square
-    a = a - a.mean(1, keepdims=True)
-    sa = jnp.sqrt((a * a).mean((1, 2)) + 1e-12)
     planes = v[:, None, :] + (steps[None, :] * x[:, 2:3] / focal[ref, 0:1])[..., None] * n[:, None, :]
     t = (jnp.einsum("cdi,ci->cd", planes - centres[ref][:, None], n)[:, :, None]
          / jnp.einsum("cpi,ci->cp", rays, n)[:, None, :])
@@ -116,7 +128,7 @@ def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, 
         ncc = (a[:, None] * b).mean((2, 3)) / (sa[:, None] * jnp.sqrt((b * b).mean((2, 3)) + 1e-12))
         inside = ((u > 1) & (u < w - 1) & (q > 1) & (q < h - 1) & (y[..., 2] > 0)).all(2)
         out.append(jnp.where(inside & nbr_ok[:, j, None], ncc, jnp.nan))
-    return jnp.stack(out, 1), sa
+    return jnp.stack(out, 1)
 
 
 def _squares_on_mask(photos, reach: float):
@@ -156,22 +168,30 @@ def _partners(v, cosines, centres, neighbours: int, max_angle: float):
     return ref, order, np.take_along_axis(good, order, 1) & usable[:, None]
 
 
-def _scores(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok):
-    """`_sweep_scores` over all vertices in fixed-size chunks (one compilation): the mean NCC over
-    each vertex's neighbours per plane `(V, D)`, how many neighbours counted, the colour deviation."""
-    r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
-    scores, counts, spread = [], [], []
+def _chunked(kernel, v, *per_vertex):
+    """`kernel(v, *per_vertex)` over the vertices in fixed-size chunks (one compilation), as numpy."""
+    out = []
     for s in range(0, len(v), _CHUNK):
         idx = np.minimum(np.arange(s, s + _CHUNK), len(v) - 1)
-        ncc, sa = _sweep_scores(colour, r, focal, centre_px, centres, offsets, steps,
-                                jnp.asarray(v[idx], jnp.float32), jnp.asarray(normals[idx], jnp.float32),
-                                jnp.asarray(ref[idx]), jnp.asarray(nbr[idx]), jnp.asarray(nbr_ok[idx]))
-        ncc = np.asarray(ncc)[: min(_CHUNK, len(v) - s)]
-        ok = np.isfinite(ncc[:, :, len(steps) // 2])
-        scores.append(np.where(ok[:, :, None] & np.isfinite(ncc), ncc, 0.0).sum(1) / np.maximum(ok.sum(1), 1)[:, None])
-        counts.append(ok.sum(1))
-        spread.append(np.asarray(sa)[: len(ncc)])
-    return np.concatenate(scores), np.concatenate(counts), np.concatenate(spread)
+        out.append(np.asarray(kernel(jnp.asarray(v[idx], jnp.float32), *(jnp.asarray(a[idx]) for a in per_vertex)))
+                   [: min(_CHUNK, len(v) - s)])
+    return np.concatenate(out)
+
+
+def _spreads(colour, arrays, offsets, v, ref):
+    """The colour deviation of each vertex's reference square `(V,)`."""
+    r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
+    return _chunked(lambda *a: _square_spreads(colour, r, focal, centre_px, centres, offsets, *a), v, ref)
+
+
+def _scores(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok):
+    """The mean NCC over each vertex's neighbours per plane `(V, D)` and how many neighbours counted
+    (`_sweep_scores`)."""
+    r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
+    ncc = _chunked(lambda *a: _sweep_scores(colour, r, focal, centre_px, centres, offsets, steps, *a),
+                   v, normals.astype(np.float32), ref, nbr, nbr_ok)
+    ok = np.isfinite(ncc[:, :, len(steps) // 2])
+    return np.where(ok[:, :, None] & np.isfinite(ncc), ncc, 0.0).sum(1) / np.maximum(ok.sum(1), 1)[:, None], ok.sum(1)
 
 
 def _targets(score, count, spread, min_ncc: float, min_contrast: float):
@@ -255,10 +275,14 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
             cosines = np.where(_on(on_mask, v, arrays), cosines, -1.0)
         ref, nbr, nbr_ok = _partners(v, cosines, arrays[4], neighbours, max_angle)
         score, count, spread = np.zeros((len(v), len(steps))), np.zeros(len(v), np.int64), np.zeros(len(v))
-        act = np.flatnonzero(nbr_ok.any(axis=1))  # only the vertices some pair of views can measure
+        # only the vertices free to move that some pair of views can measure, and of those the textured ones
+        act = np.flatnonzero(nbr_ok.any(axis=1) & ~keep)
         if len(act):
-            score[act], count[act], spread[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], ref[act],
-                                                          nbr[act], nbr_ok[act])
+            spread[act] = _spreads(colour, arrays, offsets, v[act], ref[act])
+            act = act[spread[act] > min_contrast]
+        if len(act):
+            score[act], count[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], ref[act], nbr[act],
+                                             nbr_ok[act])
         offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast)
         pixel = np.einsum("vi,vi->v", v - arrays[4][ref], r[ref, 2]) / focal[ref, 0]
         free = np.flatnonzero(~keep)  # the kept vertices' offsets are 0 exactly
