@@ -3,9 +3,10 @@
     python benchmarks/captures.py --capture DIR --genus 0 --downsample 4 1 [--cli-args "--targets silhouette"]
     python benchmarks/captures.py --report-only --out OUT
 
-DIR is a capture in the NeuS/IDR layout as published (`image/000000.png`, `mask/000.png`,
-`cameras_sphere.npz`), e.g. DTU scan65 from a public copy (github.com/jingz666/NeuF,
-`data/DTU/dtu_scan65`); the data stays outside this repository. `--holdout K` views
+DIR is a capture in the NeuS/IDR layout as published (`image/000000.png` or `images/000000.png`,
+`mask/000.png`, `cameras_sphere.npz`), e.g. DTU scan65 from a public copy (github.com/jingz666/NeuF,
+`data/DTU/dtu_scan65`), DTU scan24 and scan37 from another (github.com/wqrray/nerf_baseline,
+`data/dtu_scan24`, `data/dtu_scan37`); the data stays outside this repository. `--holdout K` views
 (every N/K-th) are held out: the rest are linked into OUT/train (renumbered, a camera file
 with their cameras) and fitted by the CLI, `jaxgenus reconstruct --images train/image --masks
 train/mask --cameras train/cameras_sphere.npz --genus G --downsample N`, in a fresh process
@@ -48,6 +49,12 @@ _RSS = ("import resource, subprocess, sys; rc = subprocess.run(sys.argv[1:]).ret
         "print('PEAK_RSS_KB', resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, flush=True); sys.exit(rc)")
 
 
+def _photos(capture: Path) -> list[Path]:
+    """The capture's photos, sorted (`image/` or `images/`)."""
+    folder = capture / "image" if (capture / "image").is_dir() else capture / "images"
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in (".png", ".jpg"))
+
+
 def split(capture: Path, out: Path, holdout: int) -> tuple[list[int], list[int]]:
     """Link the training views of a NeuS-layout capture into out/train, renumbered 0..; returns
     (train, held) view indices."""
@@ -55,7 +62,7 @@ def split(capture: Path, out: Path, holdout: int) -> tuple[list[int], list[int]]
     n = len([k for k in cams.files if k.startswith("world_mat_") and not k.startswith("world_mat_inv")])
     held = sorted({int(round(i * n / holdout)) for i in range(holdout)})
     train = [i for i in range(n) if i not in held]
-    images = sorted(p for p in (capture / "image").iterdir() if p.suffix.lower() in (".png", ".jpg"))
+    images = _photos(capture)
     masks = sorted(p for p in (capture / "mask").iterdir() if p.suffix.lower() in (".png", ".jpg"))
     if len(images) != n or len(masks) != n:
         raise SystemExit(f"{capture}: {len(images)} images and {len(masks)} masks for {n} cameras")
@@ -85,7 +92,7 @@ def first_eta(log: str, wall: float) -> tuple[float | None, float | None]:
 
 def held_out(capture: Path, held: list[int]):
     """Held-out photos (float RGB), masks and cameras at full size."""
-    files = sorted(p for p in (capture / "image").iterdir() if p.suffix.lower() in (".png", ".jpg"))
+    files = _photos(capture)
     masks = sorted(p for p in (capture / "mask").iterdir() if p.suffix.lower() in (".png", ".jpg"))
     loaded = jg.load_images([str(files[i]) for i in held], masks=[str(masks[i]) for i in held])
     h, w = loaded.images.shape[1:3]
