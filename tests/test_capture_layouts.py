@@ -133,6 +133,43 @@ def test_verdict_lets_a_smooth_fit_trail_its_carved_start_a_little():
     assert judge(Evidence(shrunk, gt, cams, tg, steps, (), True, carved_start=True), opts).ok
 
 
+def test_verdict_judges_photo_geometry_by_photo_consistency():
+    """Ray-cast photos of a textured torus: a result on the true surface, whose albedo and light do not
+    explain the photos at all (black), is ok with a warning when photo-consistency is measured, and
+    not ok without it; a result with waves across the surface, started from the true one, fails and
+    names the views the photos agree on less."""
+    from _meshes import torus_trimesh
+    from _raycast import cell_albedo, raycast_lambert
+    from jaxgenus.optim import view_neighbours
+
+    cams = jg.sphere_cameras(20, radius=3.0, fov_deg=40.0, resolution=64)
+    tm = torus_trimesh(1.0, 0.35, 64, 32)
+    photos = np.asarray(raycast_lambert(cams, tm, light_direction=(0.4, 0.8, 0.45), ambient=0.25,
+                                        albedo=cell_albedo(0.1)), np.float32)
+    tg = jg.capture.check_targets(photos, cams, kind="photo")
+    v, f = np.asarray(tm.vertices), np.asarray(tm.faces)
+    wave = 0.06 * np.sin(7 * np.arctan2(v[:, 1], v[:, 0]))[:, None] * np.asarray(tm.vertex_normals)
+    true, waved = (jg.Mesh.from_numpy((v + d).astype(np.float32), f) for d in (0.0, wave))
+    lighting, _ = jg.rendering.directional_lighting((0.4, 0.8, 0.45), 0.25)
+    black = (np.zeros((true.vertex_capacity, 3), np.float32), lighting)
+    steps = {"loss": np.array([1.0, 0.5]), "status": np.zeros(2, np.int32), "inverted_faces": np.zeros(2, np.int32)}
+    opts, consistency = jg.ReconstructOptions(), (cams, photos, view_neighbours(cams))
+
+    good = judge(Evidence(true, waved, cams, tg, steps, (), True, black, photos, consistency=consistency), opts)
+    assert good.ok, good.warnings
+    assert any(w.startswith("photometric error") and "judged by photo-consistency" in w for w in good.warnings)
+    assert np.nanmedian(good.photo_consistency) + 0.1 < np.nanmedian(good.start_photo_consistency)
+    unmeasured = judge(Evidence(true, waved, cams, tg, steps, (), True, black, photos), opts)
+    assert not unmeasured.ok and any(w.startswith("photometric error") for w in unmeasured.warnings)
+    assert judge(Evidence(true, waved, cams, tg, steps, (), True, black, photos), opts,
+                 consistency_measured=True).ok  # the written mesh of a fit judged by photo-consistency
+    wrong = judge(Evidence(waved, true, cams, tg, steps, (), True, black, photos, consistency=consistency), opts)
+    named = [w for w in wrong.warnings if w.startswith("the photos agree less on the result than on the start")]
+    assert not wrong.ok and named, wrong.warnings
+    worse = [i for i, (r, r0) in enumerate(zip(wrong.photo_consistency, wrong.start_photo_consistency)) if r > r0 + 0.05]
+    assert len(worse) >= 5 and str(worse[:10]) in named[0]
+
+
 def test_downsampled_copies_and_scaled_cameras():
     cams = jg.sphere_cameras(3, radius=3.0, fov_deg=40.0, resolution=32)
     images = np.asarray(jg.render_targets(jg.builtin_scene("torus"), cams))

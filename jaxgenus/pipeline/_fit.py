@@ -149,7 +149,10 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
                              held=setup.held), options)
     say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
         f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views"
-        + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg"))
+        + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg")
+        + ("" if verdict.photo_consistency is None or not np.isfinite(verdict.photo_consistency).any() else
+           f"; photo-consistency residual median {np.nanmedian(verdict.photo_consistency):.3f} (start "
+           f"{np.nanmedian(verdict.start_photo_consistency):.3f})"))
     seconds = time.perf_counter() - t0 - run.callback_seconds
     history = _history(setup, start, options, run, verdict, levels, seconds, index)
     albedo = None if app is None else np.array(app.albedo[: int(mesh.n_vertices)], np.float32)

@@ -19,10 +19,16 @@ A run is **not ok** (`ok = False`) when any of these holds, each with a warning:
   by more than 0.01; 0.03 when the start is the visual hull of the same
   silhouettes, which fits them by construction: `START_TOLERANCE`).
 
-* photo targets: the median over the views of the photometric error (mean
-  absolute RGB difference of the result's render, with its albedo and lighting,
-  against the photo where both cover the pixel) is above `max_photo_error`: the
-  shading model does not explain the photos.
+* photo targets fitted with photo-consistency: the photos agree less on the result than on
+  the start in some views (the residual, mean `1 - NCC` against a neighbour through the
+  mesh's depth, `consistency_residuals`, above the start's by more than
+  `CONSISTENCY_TOLERANCE`); those views are named. The geometry is judged by this residual
+  and the silhouettes, not by how well one Lambertian light explains the photos;
+* other photo targets (no photo-consistency, or no view with texture and a neighbour): the
+  median over the views of the photometric error (mean absolute RGB difference of the
+  result's render, with its albedo and lighting, against the photo where both cover the
+  pixel) is above `max_photo_error`: the shading model does not explain the photos. With
+  photo-consistency measured, that is a warning (specular or unevenly lit photos).
 
 Warnings that do not make a run fail: faces inverted at the last step, faces
 the rasterizer dropped or truncated, remeshes that hit the face budget (the mesh
@@ -34,7 +40,7 @@ The mesh a run returns is judged: when stages after the fit change it, `judged_a
 scores it again and adds what it fails.
 
 Photo targets fitted with photo-consistency also get its residual per view
-(`consistency_residuals`: mean `1 - NCC` against a neighbour through the result's depth).
+(`consistency_residuals`) in `photo_consistency`, and the start's in `start_photo_consistency`.
 """
 
 from __future__ import annotations
@@ -66,6 +72,13 @@ class Verdict(NamedTuple):
     warnings: list[str]
     photo_error: list[float] | None = None
     photo_consistency: list[float] | None = None
+    start_photo_consistency: list[float] | None = None
+
+
+#: How far a view's photo-consistency residual (mean `1 - NCC`, in [0, 1]) may rise above the start's
+#: before the verdict fails: the fit lowers it where the photos have texture; a result the photos agree
+#: on less than on the visual hull it started from has moved its surface where they do not show it.
+CONSISTENCY_TOLERANCE = 0.05
 
 
 #: Pixels rendered at once by the verdict: views go through the renderer in chunks of at most
@@ -224,9 +237,11 @@ def _loss_rise(loss: np.ndarray, time: np.ndarray, *, whole: bool) -> str:
     return ""
 
 
-def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
+def judge(evidence: Evidence, options: ReconstructOptions, *, consistency_measured: bool = False) -> Verdict:
     """Score the result and the start against the targets and decide (see the module doc), with the
-    thresholds of `options` (`min_view_iou`, `outlier_gap`, `max_photo_error`) and its renderer's `sigma`."""
+    thresholds of `options` (`min_view_iou`, `outlier_gap`, `max_photo_error`) and its renderer's `sigma`.
+    `consistency_measured`: the fit's geometry was judged by photo-consistency (the photometric error
+    only warns) although `evidence` holds none to score again (a mesh changed after the fit)."""
     e, sigma = evidence, options.render.sigma
     result, start, cams, targets, steps, cycles = e.result, e.start, e.cams, e.targets, e.steps, e.cycles
     min_iou, outlier_gap, max_photo_error = options.min_view_iou, options.outlier_gap, options.max_photo_error
@@ -270,26 +285,37 @@ def judge(evidence: Evidence, options: ReconstructOptions) -> Verdict:
     if hits:
         warn.append(f"remeshes after cycles {hits} hit the face budget (edges longer than the images resolve; "
                     "raise max_faces for more detail)")
-    perr = None
-    if e.appearance is not None:
-        perr = every(photo_errors(result, here, e.photos, *e.appearance, sigma=sigma, shading=options.render.shading))
-        med = float(np.nanmedian(perr))
-        if not med <= max_photo_error:
-            fail.append(f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian "
-                        "shading under one distant light does not explain the photos")
-        odd = [i for i, e in enumerate(perr) if e > 2.0 * med + 0.02]
-        if odd:
-            warn.append(f"photo views {odd} fit far worse than the rest (error {', '.join(f'{perr[i]:.3f}' for i in odd)}"
-                        f" against a median of {med:.3f}): exposure or lighting changed between views?")
-    pcon = None
+    pcon = start_pcon = None
     if e.consistency is not None:
         pcon = consistency_residuals(result, *e.consistency, sigma=sigma)
+        start_pcon = consistency_residuals(start, *e.consistency, sigma=sigma)
         blank = [i for i, r in enumerate(pcon) if not np.isfinite(r)]
         if blank:
             warn.append(f"photo-consistency had nothing to work with in {len(blank)} of {len(pcon)} views (no texture "
                         f"or no neighbour 5-60 degrees away): views {blank[:10]}{' ...' if len(blank) > 10 else ''}; "
                         "their inside is shaped by the silhouettes and the shading alone")
-    return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr, pcon)
+        worse = [i for i, (r, r0) in enumerate(zip(pcon, start_pcon)) if r > r0 + CONSISTENCY_TOLERANCE]
+        if worse:
+            fail.append(f"the photos agree less on the result than on the start in views {worse[:10]}"
+                        f"{' ...' if len(worse) > 10 else ''} (photo-consistency residual "
+                        f"{', '.join(f'{pcon[i]:.3f} > {start_pcon[i]:.3f}' for i in worse[:5])}): the surface moved "
+                        "where the photos do not show it")
+        consistency_measured = consistency_measured or bool(np.isfinite(pcon).any())
+    perr = None
+    if e.appearance is not None:
+        perr = every(photo_errors(result, here, e.photos, *e.appearance, sigma=sigma, shading=options.render.shading))
+        med = float(np.nanmedian(perr))
+        if not med <= max_photo_error:
+            (warn if consistency_measured else fail).append(
+                f"photometric error {med:.3f} (median over the views) is above {max_photo_error}: Lambertian shading "
+                "under one distant light does not explain the photos" + (
+                    " (specular or unevenly lit?); the geometry is judged by photo-consistency" if consistency_measured
+                    else ""))
+        odd = [i for i, e in enumerate(perr) if e > 2.0 * med + 0.02]
+        if odd:
+            warn.append(f"photo views {odd} fit far worse than the rest (error {', '.join(f'{perr[i]:.3f}' for i in odd)}"
+                        f" against a median of {med:.3f}): exposure or lighting changed between views?")
+    return Verdict(iou, start_iou, nerr, not fail, fail + warn, perr, pcon, start_pcon)
 
 
 def judged_as_written(history: History, evidence: Evidence, options: ReconstructOptions) -> tuple[History, Verdict]:
@@ -297,7 +323,8 @@ def judged_as_written(history: History, evidence: Evidence, options: Reconstruct
     fit changed the fitted one (`reconstruct`'s outline, depth, unseen surface, subdivision): its
     per-view scores replace the fitted mesh's, and what it fails or warns of that the fitted mesh did
     not is added, so `ok` holds only when both pass (the photo-consistency residual stays the fit's)."""
-    v = judge(evidence, options)
+    measured = history.photo_consistency is not None and bool(np.isfinite(history.photo_consistency).any())
+    v = judge(evidence, options, consistency_measured=measured)
     known = {w[:32] for w in history.warnings}
     new = [f"the mesh written: {w}" for w in v.warnings if w[:32] not in known]
     return dataclasses.replace(history, silhouette_iou=v.silhouette_iou, normal_error_deg=v.normal_error_deg,
