@@ -129,7 +129,8 @@ class ReconstructOptions:
 
     The verdict:
         min_view_iou: a run whose silhouette IoU is under this in any view is not ok.
-        max_photo_error: photos: not ok when the median view's mean absolute RGB error is above this.
+        max_photo_error: photos fitted without photo-consistency: not ok when the median view's mean
+            absolute RGB error is above this (with it: a warning).
 
     The result:
         subdivide: a result whose median edge is longer than 2 pixels at the images' own size goes
