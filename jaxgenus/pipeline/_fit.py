@@ -97,6 +97,7 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
         genus_estimate=setup.estimate, silhouette_iou=verdict.silhouette_iou,
         start_silhouette_iou=verdict.start_silhouette_iou, normal_error_deg=verdict.normal_error_deg,
         photo_error=verdict.photo_error, photo_consistency=verdict.photo_consistency,
+        start_photo_consistency=verdict.start_photo_consistency,
         lighting=None if app is None else np.asarray(app.lighting, np.float64).tolist(), handles=start.handles,
         resolution=[{"factor": lv.factor, "size": [lv.cameras.height, lv.cameras.width], "crop": lv.crop,
                      "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],

@@ -254,6 +254,7 @@ class History(_Readable):
         photo_consistency: per view, the result's photo-consistency residual (mean `1 - NCC`
             over textured windows against a neighbour view, at the finest level fitted; NaN where
             there was nothing to compare) when photos were fitted with it, else None.
+        start_photo_consistency: the same of the start (the verdict fails views more than 0.05 above it).
         lighting: the estimated `(3, 24)` or `(3, 3)` lighting as nested lists (photo targets only;
             see `jaxgenus.render_photo` for its convention).
         resolution: per cycle, `{"factor", "size", "crop", "views", "window", "pixels"}`: the images
@@ -286,6 +287,7 @@ class History(_Readable):
     normal_error_deg: list[float] | None = None
     photo_error: list[float] | None = None
     photo_consistency: list[float] | None = None
+    start_photo_consistency: list[float] | None = None
     lighting: list | None = None
     resolution: list[dict] = dataclasses.field(default_factory=list)
     devices: int = 1
