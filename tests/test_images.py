@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from jaxgenus.capture._images import BACKGROUND_THRESHOLD, infer_targets, load_images
+from jaxgenus.capture._images import BACKGROUND_THRESHOLD, load_images
+from jaxgenus.capture._targets import infer_targets
 from jaxgenus.capture._pairing import pair_images
 
 RNG = np.random.default_rng(0)
@@ -488,3 +489,46 @@ def test_pair_by_order_and_errors():
     cams = ["b", "a"]
     pair_images(["a", "b"], cams)
     assert cams == ["b", "a"]
+
+
+def _traced_peak(fn):
+    """`(result, peak bytes)` of `fn()` as tracemalloc counts them (numpy reports its arrays' memory)."""
+    import tracemalloc
+
+    tracemalloc.start()
+    try:
+        tracemalloc.reset_peak()
+        base = tracemalloc.get_traced_memory()[0]
+        out = fn()
+        return out, tracemalloc.get_traced_memory()[1] - base
+    finally:
+        tracemalloc.stop()
+
+
+def test_photos_load_and_check_without_copies_of_the_whole_stack(tmp_path):
+    """Reading photos with masks and checking them as targets hold about one float32 RGBA stack at a
+    time: photos and masks are kept as read (uint8) and written into the result view by view, and
+    the premultiplied targets are written view by view with their alpha a view of them. Before, on
+    this test 4.3x and 2.8x the stack; on a DTU capture (41 photos of 1600x1200, 1.26 GB as float32)
+    3.8 GB reading and 4.9 GB checked."""
+    import jaxgenus as jg
+    from jaxgenus.capture._targets import check_targets
+
+    n, h, w = 6, 96, 128
+    for i in range(n):
+        Image.fromarray(u8(RNG.random((h, w, 3)))).save(tmp_path / f"{i:03d}.png")
+        Image.fromarray(u8(disc(h, w, 48.0, 64.0, 30.0 + i))).save(tmp_path / f"{i:03d}_mask.png")
+    stack = n * h * w * 4 * 4  # bytes of one float32 RGBA stack
+    photos = sorted(str(p) for p in tmp_path.glob("*.png") if "mask" not in p.name)
+    # targets given: telling photos from normal maps reads at most a million pixels, a fixed cost
+    loaded, peak = _traced_peak(lambda: load_images(photos, masks=str(tmp_path / "*_mask.png"), targets="photo"))
+    assert loaded.images.shape == (n, h, w, 4) and loaded.targets == "photo"
+    assert peak < 1.7 * stack, peak / stack  # the stack, the files as read (uint8), a view converted
+    first = np.asarray(Image.open(photos[0]), np.float32) / 255.0
+    assert np.array_equal(loaded.images[0, ..., :3], first)  # the same values as before, exactly
+    cams = jg.sphere_cameras(n, resolution=(h, w))
+    targets, peak = _traced_peak(lambda: check_targets(loaded.images, cams, "photo"))
+    assert targets.kind == "photo" and peak < 1.3 * stack, peak / stack
+    a = loaded.images[..., 3:]
+    assert np.array_equal(targets.fit, np.concatenate([loaded.images[..., :3] * a, a], -1))
+    assert np.array_equal(targets.alpha, loaded.images[..., 3]) and np.shares_memory(targets.alpha, targets.fit)

@@ -3,8 +3,8 @@
 `load_images` turns arrays, folders of PNG masks, RGBA renders and JPEG photos
 with mask folders into the `(N, H, W, C)` float32 stacks in [0, 1] (row 0 at the
 top) that `reconstruct` takes, and says what kind of targets they are
-(`infer_targets`); `jaxgenus.capture._pairing.pair_images` says which camera goes with
-which image.
+(`jaxgenus.capture._targets.infer_targets`); `jaxgenus.capture._pairing.pair_images` says
+which camera goes with which image.
 """
 
 from __future__ import annotations
@@ -18,17 +18,12 @@ import numpy as np
 from jaxtyping import Float
 
 from jaxgenus.capture._mask_pixels import grey_mask, is_grey, luminance, mask_like
+from jaxgenus.capture._targets import TARGET_KINDS as TARGETS, inferred_targets
 
-__all__ = ["BACKGROUND_THRESHOLD", "IMAGE_EXTENSIONS", "LoadedImages", "few", "infer_targets", "load_images"]
+__all__ = ["BACKGROUND_THRESHOLD", "IMAGE_EXTENSIONS", "LoadedImages", "few", "load_images"]
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")
 BACKGROUND_THRESHOLD = 0.1  # max channel distance to the background colour above which a pixel is foreground
-TARGETS = ("silhouette", "normals", "photo")
-# normal-map test (infer_targets) over pixels with A >= 0.5, d = | ||2 rgb - 1|| - 1 |:
-_NORMALS_MEDIAN = 0.05  # median of d below this,
-_NORMALS_NEAR, _NORMALS_FRACTION = 0.15, 0.9  # >= 90 % of the pixels with d < 0.15,
-_NORMALS_SPREAD = 0.05  # directions not all along one axis (a grey photo's lie on (1, 1, 1)),
-_NORMALS_MIN_PIXELS = 64  # and enough pixels to tell
 _GREY_FRACTION = 0.3  # a "mask" with more grey (0.1 < m < 0.9) pixels than this is a photo
 _MASK_SUFFIXES = ("_mask", "-mask", ".mask")
 _HOW_TO_MASK = "masks (masks=DIR, CLI --masks DIR) or background='black'|'white' (CLI --masks white|black)"
@@ -58,7 +53,7 @@ class LoadedImages(NamedTuple):
 
 class _Picture(NamedTuple):
     path: str
-    pixels: np.ndarray  # (H, W, C) float32 in [0, 1], C in {1, 2 (LA), 3, 4}
+    pixels: np.ndarray  # (H, W, C) as read (`_checked`: uint8, uint16, bool or float32), C in {1, 2 (LA), 3, 4}
     format: str  # "PNG", "JPEG", ...
     label: bool  # a palette of colours (a label map such as DAVIS's)
     rotated: bool  # an EXIF orientation was applied
@@ -74,18 +69,30 @@ def _stem(path: str) -> str:
     return os.path.splitext(os.path.basename(path))[0]
 
 
-def _scale(arr: np.ndarray, what: str) -> np.ndarray:
-    """uint8 / 255, uint16 / 65535, bool -> {0, 1}, float kept (checked in [0, 1]); always a new float32 array."""
-    if arr.dtype in (np.uint8, np.uint16):
-        return arr.astype(np.float32) / np.float32(255.0 if arr.dtype == np.uint8 else 65535.0)
-    if arr.dtype == np.bool_:
-        return arr.astype(np.float32)
+def _checked(arr: np.ndarray, what: str) -> np.ndarray:
+    """`arr` as read (uint8, uint16, bool, or float checked in [0, 1] and kept as float32); not copied
+    where it is one of those already: the float32 copy is made per picture where it is used (`_float`)."""
+    if arr.dtype in (np.uint8, np.uint16, np.bool_):
+        return arr
     if np.issubdtype(arr.dtype, np.floating):
-        out = arr.astype(np.float32)
+        out = np.asarray(arr, np.float32)
         if out.size and not (np.isfinite(out).all() and out.min() >= 0.0 and out.max() <= 1.0):
             raise ValueError(f"{what}: float values must lie in [0, 1], got [{np.nanmin(out):.4g}, {np.nanmax(out):.4g}]")
         return out
     raise ValueError(f"{what}: dtype {arr.dtype} is not supported (use uint8, uint16, bool or float in [0, 1])")
+
+
+def _float(arr: np.ndarray) -> np.ndarray:
+    """Pixels as read (`_checked`) in [0, 1] as float32: uint8 / 255, uint16 / 65535, bool -> {0, 1}."""
+    if arr.dtype in (np.uint8, np.uint16):
+        return arr.astype(np.float32) / np.float32(255.0 if arr.dtype == np.uint8 else 65535.0)
+    return np.asarray(arr, np.float32)
+
+
+def _scale(arr: np.ndarray, what: str) -> np.ndarray:
+    """`arr` checked and scaled to [0, 1] (`_checked`, `_float`); always a new float32 array."""
+    out = _float(_checked(arr, what))
+    return out.copy() if np.may_share_memory(out, arr) else out
 
 
 def _read(path: str, what: str) -> _Picture:
@@ -118,7 +125,7 @@ def _read(path: str, what: str) -> _Picture:
                 px = np.asarray(im.convert("RGBA" if im.mode.endswith(("A", "a")) or im.mode == "P" else "RGB"))
     except (OSError, UnidentifiedImageError, SyntaxError) as err:
         raise ValueError(f"{what}: cannot read {path} as an image ({err})") from None
-    return _Picture(path, _scale(px if px.ndim == 3 else px[..., None], f"{what}: {path}"), fmt, label, rotated)
+    return _Picture(path, _checked(px if px.ndim == 3 else px[..., None], f"{what}: {path}"), fmt, label, rotated)
 
 
 def _read_all(paths: list[str], what: str) -> list[_Picture]:
@@ -200,7 +207,7 @@ def _array(arr, what: str, views=None) -> tuple[np.ndarray, str, np.ndarray | No
 
 def _mask(pic: _Picture, what: str, check_grey: bool = True) -> np.ndarray:
     """`(H, W)` mask of a mask file: luminance (times alpha), see `load_images`."""
-    px, c = pic.pixels, pic.pixels.shape[-1]
+    px, c = _float(pic.pixels), pic.pixels.shape[-1]
     if pic.label:
         m = (px.max(-1) > 0).astype(np.float32)
     elif c in (1, 3):
@@ -272,9 +279,9 @@ def _pair_masks(photos: list[str], masks: list[str]) -> tuple[list[int], list[st
 
 
 def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int],
-                views: np.ndarray | None = None) -> tuple[np.ndarray, str]:
+                views: np.ndarray | None = None, into: np.ndarray | None = None) -> tuple[np.ndarray, str]:
     """`(N, H, W)` masks for N photos: paired by stem when the photos are files, else by order;
-    only those of the photos `views` (indices) when given."""
+    only those of the photos `views` (indices) when given; written into `into` when given."""
     if _is_array(masks):
         arr, _, _, _ = _array(masks, "masks", views)
         if views is not None:
@@ -290,49 +297,10 @@ def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int],
     _check_size(pics, size, "its image", "masks")
     how = "paired by order" if photos is None else "paired by number" if by_number else "paired by name"
     note = f"; {len(extra)} masks without photos ignored ({few(extra, 3)})" if extra else ""
-    return np.stack([_mask(p, "masks") for p in pics]), _describe(pics, f"mask files {how}{note}")
-
-
-def _infer(images: np.ndarray) -> tuple[str, str]:
-    """`infer_targets` with a reason."""
-    if images.shape[-1] == 1:
-        return "silhouette", "silhouettes only"
-    flat = images.reshape(-1, 4)[:: images[..., 0].size // 4_000_000 + 1]  # a million covered pixels: plenty for a median
-    rgb = flat[flat[:, 3] >= 0.5, :3]
-    rgb = rgb[:: len(rgb) // 1_000_000 + 1]
-    if len(rgb) < _NORMALS_MIN_PIXELS:
-        return "photo", f"only {len(rgb)} covered pixels, too few to tell a normal map"
-    v = 2.0 * rgb.astype(np.float64) - 1.0
-    length = np.linalg.norm(v, axis=-1)
-    d = np.abs(length - 1.0)
-    u = v / np.maximum(length, 1e-6)[:, None]
-    med, near, spread = np.median(d), np.mean(d < _NORMALS_NEAR), np.linalg.eigvalsh(u.T @ u / len(u))[1]
-    stats = f"median | |2 rgb - 1| - 1 | = {med:.3f}, {near:.0%} within {_NORMALS_NEAR}, direction spread {spread:.2f}"
-    if med < _NORMALS_MEDIAN and near >= _NORMALS_FRACTION and spread > _NORMALS_SPREAD:
-        return "normals", f"RGB reads as unit normals ({stats})"
-    return "photo", f"RGB is not a normal map ({stats})"
-
-
-def infer_targets(images) -> str:
-    """What an image stack holds: `"silhouette"`, `"normals"` or `"photo"`.
-
-    `(N, H, W)` / `(N, H, W, 1)` -> `"silhouette"`. For `(N, H, W, 4)` RGBA the pixels with A >= 0.5
-    of all images are pooled, `v = 2 rgb - 1` and `d = | ||v|| - 1 |`. It is `"normals"` only when all
-    hold: the median of d is below 0.05; at least 90 % of the pixels have d < 0.15 (anti-aliased edges
-    and creases average normals to shorter vectors, 8-bit and JPEG quantisation add ~0.01-0.03: rendered
-    sphere and torus targets give medians < 0.01 and > 97 %); the directions `v / ||v||` do not all lie
-    along one axis (second eigenvalue of their mean outer product > 0.05; one view of a sphere gives
-    0.25, a grey photo 0, as its v lie on the (1, 1, 1) diagonal even where a flat grey of 0.79 has
-    ||v|| = 1); and at least 64 pixels are covered. Otherwise `"photo"`: shading spreads ||v|| far more
-    (Lambert-shaded grey and textured photos give medians of 0.3-0.6), so a photo is not taken for a
-    normal map, at the price of a single view of one flat face reading as a photo (give
-    `targets="normals"`). World- and camera-space normal maps both read as normals.
-    """
-    arr = np.asarray(images)
-    arr = arr[..., None] if arr.ndim == 3 else arr
-    if arr.ndim != 4 or arr.shape[-1] not in (1, 4):
-        raise ValueError(f"images: expected (N, H, W), (N, H, W, 1) or (N, H, W, 4), got {arr.shape}")
-    return _infer(arr)[0]
+    out = np.empty((len(pics),) + tuple(size), np.float32) if into is None else into
+    for i, p in enumerate(pics):
+        out[i] = _mask(p, "masks")
+    return out, _describe(pics, f"mask files {how}{note}")
 
 
 def load_images(path, *, masks=None, background: str | None = None, targets: str | None = None,
@@ -366,8 +334,8 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
             exceeds `background_threshold` (default `BACKGROUND_THRESHOLD` = 0.1, about 26 / 255: above JPEG and sensor noise, so the
             object must differ from the background by more than that in some channel); no cleanup.
         targets: `"silhouette"`, `"normals"` or `"photo"`, checked against what was read (normals and
-            photos need RGB); None infers it (`infer_targets`). `"silhouette"` keeps only the mask:
-            images are then `(N, H, W, 1)`.
+            photos need RGB); None infers it (`infer_targets`). `"silhouette"` keeps only the mask: images
+            are then `(N, H, W, 1)`.
         views: read only these images (increasing indices in reading order, or a function of the
             image count giving them, e.g. `lambda n: jaxgenus.optim.held_views(n)` for the views
             this process renders when processes share a capture) and their masks; None: all.
@@ -412,32 +380,36 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         images = np.stack([_mask(p, "images", check_grey=files is not None) for p in pics])[..., None]
         source = _describe(pics, "grayscale mask files, silhouettes") if files else source + ", silhouettes"
     else:
-        rgb = np.stack([np.repeat(p.pixels[..., :1], 3, -1) if g else p.pixels[..., :3] for p, g in zip(pics, grey)])
-        alphas = [p.pixels[..., -1] if p.pixels.shape[-1] in (2, 4) else None for p in pics]
-        has_alpha = any(a is not None and a.min() < 1.0 for a in alphas)
+        images = np.empty((len(pics),) + pics[0].pixels.shape[:2] + (4,), np.float32)  # filled view by view
+        for i, (p, g) in enumerate(zip(pics, grey)):
+            images[i, ..., :3] = _float(p.pixels[..., :1] if g else p.pixels[..., :3])
+        has_alpha = any(p.pixels.shape[-1] in (2, 4) and _float(p.pixels[..., -1]).min() < 1.0 for p in pics)
         if files:
             noun = ("grayscale photos" if all(grey) else "photos") if derive else "RGBA files" if has_alpha else "RGB files"
             source = _describe(pics, noun)
         if masks is not None:
-            m, how = _load_masks(masks, files, n_all, rgb.shape[1:3], chosen)
+            m, how = _load_masks(masks, files, n_all, images.shape[1:3], chosen, into=images[..., 3])
+            images[..., 3] = m  # (mask files were written there already)
             source += f" + {how}" + (", replacing their alpha" if has_alpha else "")
         elif background is not None:
             if has_alpha:
                 raise ValueError(f"background: the images ({first}) have alpha masks already; background is for photos without one")
-            m = (np.abs(rgb - (0.0 if background == "black" else 1.0)).max(-1) > background_threshold).astype(np.float32)
+            for view in images:
+                view[..., 3] = np.abs(view[..., :3] - (0.0 if background == "black" else 1.0)).max(-1) > background_threshold
             source += f", masks where max |RGB - {background}| > {background_threshold}"
         elif has_alpha:
-            odd = next((p for p, a in zip(pics, alphas) if a is None), None)
+            odd = next((p for p in pics if p.pixels.shape[-1] not in (2, 4)), None)
             if odd is not None:
                 raise ValueError(f"images: {odd.path} has no alpha channel but {first} has one; all images must be of one kind")
-            m, source = np.stack(alphas), source + ", alpha = mask"
+            for view, p in zip(images, pics):
+                view[..., 3] = _float(p.pixels[..., -1])
+            source += ", alpha = mask"
         else:
             raise ValueError(f"images: {first} has no mask (RGB without alpha, or alpha opaque everywhere); give {_HOW_TO_MASK}")
-        images = np.concatenate([rgb, m[..., None]], axis=-1, dtype=np.float32)
 
-    inferred, why = _infer(images)
     if targets is None:
-        targets, note = inferred, f"targets {inferred}: {why}"
+        targets, why = inferred_targets(images)
+        note = f"targets {targets}: {why}"
     elif images.shape[-1] == 1 and targets != "silhouette":
         raise ValueError(f"targets={targets!r} needs RGB images, but {first} holds silhouette masks")
     else:

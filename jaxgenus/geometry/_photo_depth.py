@@ -265,8 +265,9 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     keep = keep | (adj @ keep.astype(np.float64) > 0)
     lap = ((sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj) * smoothing).tocsr()
     v, measured, stats = v0.copy(), np.zeros(len(v0), bool), ([], [], [])
+    cur = trimesh.Trimesh(v, faces, process=False)  # one mesh, its vertices set each sweep (`ray_intersector`)
     for _ in range(rounds):
-        cur = trimesh.Trimesh(v, faces, process=False)
+        cur.vertices = v
         normals = np.asarray(cur.vertex_normals)
         tol = 1e-3 * float(np.linalg.norm(np.ptp(v, axis=0)))
         cosines, _ = facing_cosines(cur, ray_intersector(cur), tol, arrays, (cameras.height, cameras.width),

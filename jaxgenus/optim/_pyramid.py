@@ -80,7 +80,10 @@ def _halved(x: np.ndarray) -> np.ndarray:
     n, h, w, c = x.shape
     if h % 2 or w % 2:
         x = np.pad(x, ((0, 0), (0, h % 2), (0, w % 2), (0, 0)))
-    return 0.25 * ((x[:, 0::2, 0::2] + x[:, 1::2, 0::2]) + (x[:, 0::2, 1::2] + x[:, 1::2, 1::2]))
+    out = x[:, 0::2, 0::2] + x[:, 1::2, 0::2]  # 0.25 * ((a + b) + (c + d)), two temporaries of the result's size
+    out += x[:, 0::2, 1::2] + x[:, 1::2, 1::2]
+    out *= np.float32(0.25) if out.dtype == np.float32 else 0.25
+    return out
 
 
 def target_boxes(targets: Float[Array, "N H W C"], margin: int) -> Int[Array, "N 4"]:

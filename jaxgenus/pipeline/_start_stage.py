@@ -65,17 +65,24 @@ def _sources(start: Start, genus: int) -> tuple[HandleRecord, ...]:
     return (HandleRecord("hull"),) * (genus - start.tunnels) + (HandleRecord("drilled"),) * start.tunnels
 
 
+def _evidence_factor(cams) -> int:
+    """The downsampling factor of `evidence_level`: images of about 256 px."""
+    factor = 1
+    while max(cams.height, cams.width) / (2 * factor) >= 192:
+        factor *= 2
+    return factor
+
+
 def evidence_pixel(setup: Setup) -> float:
     """The size of a pixel of `evidence_level` (canonical frame): no narrower hole can be seen there."""
-    return setup.pixel * setup.cams.width / evidence_level(setup)[0].width
+    return setup.pixel * setup.cams.width / scaled_cameras(setup.cams, _evidence_factor(setup.cams)).width
 
 
 def evidence_level(setup: Setup) -> tuple[object, np.ndarray]:
-    """The cameras and normal images at about 256 px, where holes are looked for."""
-    cams, factor = setup.cams, 1
-    while max(cams.height, cams.width) / (2 * factor) >= 192:
-        factor *= 2
-    return scaled_cameras(cams, factor), setup.all_views(pyramid_level(setup.targets.fit, factor, normals=True))
+    """The cameras and images (normal maps, or photos premultiplied) at about 256 px, where holes are looked for."""
+    factor = _evidence_factor(setup.cams)
+    level = pyramid_level(setup.targets.fit, factor, normals=setup.targets.kind == "normals")
+    return scaled_cameras(setup.cams, factor), setup.all_views(level)
 
 
 def image_handle_records(opened: list, frame) -> tuple[HandleRecord, ...]:
