@@ -64,15 +64,18 @@ def pyramid_level(fit: np.ndarray, factor: int, *, normals: bool = True) -> np.n
         return level
     n, h, w, c = fit.shape
     hh, ww = -(-h // factor), -(-w // factor)
-    pad = np.zeros((n, hh * factor, ww * factor, c), np.float32)
-    pad[:, :h, :w] = fit
-    if normals:
-        normal = 2.0 * pad[..., :3] - 1.0
-        pad[..., :3] = pad[..., 3:4] * normal
-    blocks = pad.reshape(n, hh, factor, ww, factor, c).mean(axis=(2, 4))
-    if normals:
-        blocks[..., :3] = 0.5 * (blocks[..., :3] + 1.0)
-    return blocks.astype(np.float32)
+    out = np.empty((n, hh, ww, c), np.float32)
+    for i in range(n):  # a view at a time: no padded copy of the whole stack
+        pad = np.zeros((1, hh * factor, ww * factor, c), np.float32)
+        pad[:, :h, :w] = fit[i:i + 1]
+        if normals:
+            normal = 2.0 * pad[..., :3] - 1.0
+            pad[..., :3] = pad[..., 3:4] * normal
+        blocks = pad.reshape(1, hh, factor, ww, factor, c).mean(axis=(2, 4))
+        if normals:
+            blocks[..., :3] = 0.5 * (blocks[..., :3] + 1.0)
+        out[i] = blocks[0]
+    return out
 
 
 def _halved(x: np.ndarray) -> np.ndarray:

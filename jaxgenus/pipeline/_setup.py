@@ -269,9 +269,9 @@ def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras,
     factor = 1
     while max(cams.height, cams.width) / factor > STEREO_SIZE:
         factor *= 2
-    photos, scaled = np.asarray(pyramid_level(tg.fit, factor, normals=False)), scaled_cameras(cams, factor)
-    # composited over mid-grey, as the stereo has been measured (docs/results.md, "The stereo's input")
-    photos[..., :3] += np.float32(0.5) * (np.float32(1.0) - photos[..., 3:])
+    # averaged as normal maps are (premultiplied colour plus mid-grey for a block's uncovered share): the
+    # stereo's measured input, kept to the bit (docs/results.md, "The stereo's input")
+    photos, scaled = np.asarray(pyramid_level(tg.fit, factor, normals=True)), scaled_cameras(cams, factor)
     share, why = texture_share(photos) if options.stereo_carve > 0 else 1.0, ""
     if share < FINE_TEXTURE:
         why = (f"; no carving: albedo edges cover {share:.0%} of the masks, under {FINE_TEXTURE:.0%} (two views "
