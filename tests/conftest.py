@@ -34,8 +34,33 @@ def _cache_folder(config) -> Path:
     return Path(env) if env else Path(config.rootpath) / ".pytest_cache" / "jaxgenus-xla"
 
 
+#: XLA CPU compiles the suite's programs with its loop emitters instead of its fusion emitters: the
+#: same programs, about a third less compile time on the compile-bound modules (docs/results.md,
+#: 2026-12-07). The two-process test runs XLA's defaults, so one end-to-end run keeps them covered.
+TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false"
+
+
+def _xla_accepts(flags: str) -> bool:
+    """Whether this jaxlib starts with `flags` (XLA aborts the process on a flag it does not know)."""
+    import subprocess
+    import sys
+
+    env = dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
+    probe = "import jax; jax.numpy.zeros(1).block_until_ready()"
+    return subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, timeout=120).returncode == 0
+
+
+def _with_test_flags():
+    """`TEST_XLA_FLAGS` added to `$XLA_FLAGS` (read when the first backend starts, so before any test
+    runs; the xdist workers and the subprocesses of tests inherit it) unless set there or refused."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    name = TEST_XLA_FLAGS.split("=")[0]
+    if name not in flags and _xla_accepts(f"{flags} {TEST_XLA_FLAGS}".strip()):
+        os.environ["XLA_FLAGS"] = f"{flags} {TEST_XLA_FLAGS}".strip()
+
+
 def pytest_configure(config):
-    """One on-disk compilation cache, shared by the xdist workers and the subprocesses that tests
+    """XLA flags for the suite (`TEST_XLA_FLAGS`), and one on-disk compilation cache, shared by the xdist workers and the subprocesses that tests
     start (they inherit the environment): a program that two workers, two modules or a test and a
     subprocess compile is compiled once, and a second run of the suite reuses what the first
     compiled. Its key is the program, the jax version and the XLA flags, so a changed program is
@@ -49,6 +74,7 @@ def pytest_configure(config):
         folder.mkdir(parents=True, exist_ok=True)
         os.environ[_CACHE_ENV] = str(folder)
         os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+        _with_test_flags()
     jax.config.update("jax_compilation_cache_dir", str(folder))
     jax.config.update("jax_persistent_cache_min_compile_time_secs",
                       float(os.environ.get("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")))

@@ -50,8 +50,14 @@ SCRIPT = textwrap.dedent(
 )
 
 
+def _four_devices() -> dict:
+    """The environment of a process with 4 forced CPU devices and the suite's XLA flags (conftest)."""
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4".strip()
+    return dict(os.environ, XLA_FLAGS=flags, JAX_PLATFORMS="cpu")
+
+
 def test_render_splits_views_over_devices():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    env = _four_devices()
     proc = subprocess.run([sys.executable, "-c", SCRIPT], capture_output=True, text=True, env=env, timeout=600)
     assert proc.returncode == 0 and proc.stdout.strip().endswith("OK"), proc.stdout[-2000:] + proc.stderr[-4000:]
 
@@ -106,7 +112,7 @@ RECONSTRUCT = textwrap.dedent(
 
 
 def test_reconstruct_on_four_devices_matches_one():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    env = _four_devices()
     proc = subprocess.run([sys.executable, "-c", RECONSTRUCT], capture_output=True, text=True, env=env, timeout=900)
     lines = [ln.split()[1:] for ln in proc.stdout.splitlines() if ln.startswith("RESULT")]
     assert proc.returncode == 0 and len(lines) == 2, proc.stdout[-2000:] + proc.stderr[-4000:]
@@ -152,6 +158,7 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
     (tmp_path / "cameras.json").write_text(json.dumps({"height": 48, "width": 48, "cameras": views}))
     base = [sys.executable, "-m", "jaxgenus", "reconstruct", "--images", str(tmp_path / "images"), "--cameras",
             str(tmp_path / "cameras.json"), "--genus", "1", "--option", "n_cycles=2", "steps_per_cycle=40"]
+    # XLA's own defaults here (not the suite's flags): one end-to-end run of the suite compiles as users do
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=1", JAX_PLATFORMS="cpu")
     single = subprocess.run(base + ["--out", str(tmp_path / "one" / "mesh.obj")], capture_output=True, text=True,
                             env=env, timeout=900)

@@ -98,7 +98,7 @@ def test_matches_jax_splat_float64(attrs, want_depth):
 @pytest.mark.parametrize("attrs,want_depth", CHANNELS)
 def test_matches_jax_splat_float32(attrs, want_depth):
     cfg, tier, dconst = _scene(np.float32, attrs, want_depth)
-    _compare(cfg, tier, dconst, 1e-4)
+    _compare(cfg, tier, dconst, 2e-4)  # float32 rounding: 1.4e-4 on the gradient with XLA CPU's loop emitters
 
 
 def test_vmap_and_grad():
