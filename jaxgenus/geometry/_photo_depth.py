@@ -40,7 +40,7 @@ from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_co
 
 __all__ = ["PhotoDepthFit", "fit_photo_depth"]
 
-_CHUNK = 512
+_CHUNK = 128  # vertices a sweep call: its temporaries ~180 MiB at 49 views x 33 planes x 81 samples x 8 partners (710 at 512)
 _LEVEL = 1.0 / 65535.0  # the colours' 16-bit step on the device
 
 
@@ -77,13 +77,21 @@ def _sample(colour, cam, u, v):
     return (at(b) * (1 - ax) + at(b + 1) * ax) * (1 - ay) + (at(b + w) * (1 - ax) + at(b + w + 1) * ax) * ay
 
 
+@jax.jit(donate_argnums=0)
+def _with_view(levels, k, view):
+    """`levels` with view `k` replaced by `view`, in place (the buffer is donated)."""
+    return jax.lax.dynamic_update_index_in_dim(levels, view, k, 0)
+
+
 def _device_colours(src: np.ndarray):
     """The photos' colours `(N, H, W, 3)` on the device as 16-bit levels `_LEVEL` apart (half the memory
-    of float32), converted a view at a time: no float copy of all the photos is made."""
-    out = np.empty(src.shape[:3] + (3,), np.uint16)
+    of float32), converted and written a view at a time into one device buffer: neither a float copy
+    nor a host copy of all the photos is made (a whole-stack transfer held two)."""
+    levels = jnp.zeros(src.shape[:3] + (3,), jnp.uint16)
     for k in range(len(src)):
-        out[k] = np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0))
-    return jnp.asarray(out)
+        view = np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0)).astype(np.uint16)
+        levels = _with_view(levels, k, view)
+    return levels
 
 
 def _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref):
