@@ -9,6 +9,7 @@ import jax.numpy as jnp
 import jaxgenus as jg
 from jaxgenus.optim import (ROBUST_SPREAD, consistency_windows, optimize_block, init_optimizer_state, photo_consistency,
                             robust_cost, view_neighbours)
+from _dumps import assert_full_precision, dumped_programs
 from _meshes import torus, torus_trimesh
 from _raycast import cell_albedo, raycast_depth, raycast_lambert
 
@@ -215,14 +216,18 @@ def test_windows_and_block_with_neighbours(scene):
         optimize_block(state, cams, photos, n_steps=1, options=opts, neighbours=table + 20)
 
 
-def test_reconstruct_with_photo_consistency_reports_residuals():
+def test_reconstruct_with_photo_consistency_reports_residuals(tmp_path):
+    """A small photo fit end to end; every program it compiles asks for full-precision float32 products
+    (test_precision)."""
     tm = torus_trimesh(1.0, 0.35, 64, 32)
     cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
     straight = np.asarray(raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.25, albedo=cells), np.float32)
     opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=15, consistency=1.0, polish_cycles=2)
     rows = []
-    rec = jg.reconstruct(straight, cams, 1, targets="photo", options=opts, key=jax.random.key(0),
-                         callback=lambda row, mesh: rows.append(row))
+    with dumped_programs(tmp_path):
+        rec = jg.reconstruct(straight, cams, 1, targets="photo", options=opts, key=jax.random.key(0),
+                             callback=lambda row, mesh: rows.append(row))
+    assert_full_precision(tmp_path)
     res = np.asarray(rec.history["photo_consistency"], np.float64)
     assert res.shape == (16,) and np.any(np.isfinite(res)) and np.all(res[np.isfinite(res)] <= 1.0)
     assert np.any(np.asarray(rec.history["consistency"]) > 0)

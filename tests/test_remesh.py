@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import jaxgenus as jg
@@ -39,8 +39,9 @@ def min_angles(v, f):
     return np.min(out, axis=0)
 
 
-def assert_same_topology(mesh_in, mesh_out):
-    """Closed, manifold, oriented outward, one component per input component, same genus."""
+def assert_same_topology(mesh_in, mesh_out, oriented_as=None):
+    """Closed, manifold, oriented as `oriented_as` (default `mesh_in`: the sign of the volume), one
+    component per input component, same genus."""
     r_in, r_out = jg.mesh_report(mesh_in), jg.mesh_report(mesh_out)
     assert bool(r_out.is_closed_manifold)
     assert int(r_out.euler_characteristic) == int(r_in.euler_characteristic)
@@ -48,7 +49,8 @@ def assert_same_topology(mesh_in, mesh_out):
     assert jg.genus(mesh_out) == jg.genus(mesh_in)
     t_in, t_out = mesh_in.to_trimesh(), mesh_out.to_trimesh()
     assert t_out.is_watertight and t_out.is_winding_consistent
-    assert np.sign(t_out.volume) == np.sign(t_in.volume)
+    reference = t_in if oriented_as is None else oriented_as.to_trimesh()
+    assert np.sign(t_out.volume) == np.sign(reference.volume)
     assert t_out.body_count == t_in.body_count
 
 
@@ -190,15 +192,19 @@ def test_random_operation_sequences_keep_invariants(kind, seed, ops):
     iterations=st.integers(1, 5),
     lam=st.floats(0.2, 1.0),
 )
+@example(g=4, seed=512, noise=1.5, scale=1.0, adaptive=False, iterations=1, lam=1.0)  # a fold: see below
 def test_random_remeshes_of_noisy_meshes_keep_genus(g, seed, noise, scale, adaptive, iterations, lam):
-    v, f = jg.genus_primitive(g, n_faces=500).to_numpy()
+    clean = jg.genus_primitive(g, n_faces=500)
+    v, f = clean.to_numpy()
     v = v.astype(np.float64)
     h = float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=-1).mean())
     v = v + noise * h * np.random.default_rng(seed).normal(size=v.shape)  # may fold and self-intersect
     opts = jg.RemeshOptions(target_edge_length=scale * h, adaptive=adaptive, iterations=iterations, smoothing_lambda=lam)
     out, info = jg.remesh((v, f), opts)
     assert info.status == jg.geometry.RemeshStatus.OK, info.message
-    assert_same_topology(jg.Mesh.from_numpy(v, f), out)
+    # oriented outward as the primitive was: a noisy copy that folds can have a negative signed volume
+    # (g=4, seed=512, noise=1.5: -0.031), which the remesh, unfolding it, does not keep
+    assert_same_topology(jg.Mesh.from_numpy(v, f), out, oriented_as=clean)
 
 
 def test_a_coarse_boolean_with_thin_walls_keeps_its_shape():
