@@ -532,3 +532,24 @@ def test_optimize_block_flags_nonfinite_step_and_keeps_state():
     state, rec = jg.optim.optimize_block(state, cams, targets, n_steps=2, options=opts)
     assert np.all(np.isfinite(np.asarray(rec["loss"]))) and np.all(np.asarray(rec["status"]) == 2)
     np.testing.assert_array_equal(np.asarray(state.mesh.vertices), x0)
+
+
+def test_a_block_given_its_factor_compiles_no_cg_and_steps_alike(cpu_device):
+    """A block given its mesh's factor, found `ok` on the host (as a fit's cycle does), traces no CG
+    fallback and takes the same steps as a block that factors the matrix itself."""
+    from jaxgenus.optim._optimize import _optimize_block_jit
+
+    mesh, cams, targets = _fit_problem(resolution=12, n_views=6)
+    opts = jg.OptimizeOptions(learning_rate=0.05, adam_quantile=1.0, renderer=soft_silhouette)
+    factor = jg.optim.block_factor(mesh, opts.lambda_)
+    assert bool(factor.ok)
+    runs, texts = [], []
+    for given in (None, factor):
+        state = jg.optim.init_optimizer_state(mesh, jax.random.key(1))
+        args = (state, cams, targets, 4, opts, jnp.float32(1.0), None, None, None, given)
+        texts.append(_optimize_block_jit.lower(*args).as_text(debug_info=True))
+        runs.append(_optimize_block_jit(*args))
+    assert "linear_solve" in texts[0] and "linear_solve" not in texts[1]  # lineax's CG only without the factor
+    (s0, r0), (s1, r1) = runs
+    np.testing.assert_allclose(np.asarray(s1.mesh.vertices), np.asarray(s0.mesh.vertices), rtol=0, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(r1["loss"]), np.asarray(r0["loss"]), rtol=1e-6)

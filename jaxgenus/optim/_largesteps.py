@@ -12,7 +12,9 @@ mesh (a sparse Cholesky factor in double precision, nested-dissection order, in 
 native kernel `kernels/cholesky`), and each solve with it is two triangular solves
 (about 2x cheaper a step than CG's 60-90 iterations at 3-7k vertices). Where there
 is no factor (another platform, no `factor` passed, or a factor that did not fit its
-buffer) the solve is CG:
+buffer) the solve is CG. A fit's cycle computes its block's factor first (`block_factor`) and
+reads `ok` on the host: a block whose factor fit is compiled without the CG fallback
+(`fallback=False`), which is a third of its compile time. The CG:
 
 The CG solve is `lineax.CG` on a matrix-free `lineax.FunctionLinearOperator`, with a
 Jacobi preconditioner, warm-started from the previous `x` (per column, only where
@@ -189,6 +191,7 @@ def largesteps_solve(
     rtol: float = DEFAULT_RTOL,
     max_iter: int = DEFAULT_MAX_ITER,
     factor: Factor | None = None,
+    fallback: bool = True,
 ) -> tuple[Float[Array, "V 3"], SolveInfo]:
     """Solve `(I + lambda L) x = b`: with the matrix's `factor` directly (on the CPU, when it fit),
     otherwise by preconditioned CG (`lineax.CG`), warm-started at `x0`.
@@ -198,7 +201,9 @@ def largesteps_solve(
     stops when its CG residual is `<= rtol * ||b_c||` or after `max_iter`
     iterations; `SolveInfo` says which. A column with `b_c = 0` is `x_c = 0`
     (no iteration); a non-finite column stops at once (its `x_c` is the start)
-    and the solve reads as not converged.
+    and the solve reads as not converged. `fallback=False`: the caller read `factor.ok` on the
+    host (a factor computed before): on the CPU the solve is the direct one alone, and the CG
+    fallback, a third of an optimizer block's compile time, is not compiled.
     """
     _check_lambda(lambda_)
     if b.ndim != 2 or b.shape[0] != laplacian.degree.shape[0]:
@@ -227,7 +232,7 @@ def largesteps_solve(
         x = _factor_solve(factor, b)
         return x, true_info(b, x, jnp.int32(0), jnp.bool_(True))
 
-    on_cpu = lambda b, x0: jax.lax.cond(factor.ok, direct, cg, b, x0)
+    on_cpu = (lambda b, x0: jax.lax.cond(factor.ok, direct, cg, b, x0)) if fallback else direct
     x0 = jnp.zeros_like(b) if x0 is None else x0.astype(b.dtype)
     return jax.lax.platform_dependent(b, x0, cpu=on_cpu, default=cg)
 

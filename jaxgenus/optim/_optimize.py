@@ -45,6 +45,7 @@ __all__ = [
     "Appearance",
     "OptimizeOptions",
     "OptimizerState",
+    "block_factor",
     "init_optimizer_state",
     "optimize_block",
     "optimize_steps",
@@ -289,13 +290,15 @@ def _appearance_step(app, g_app, app_state, rates, lr_scale, vmask):
 
 
 def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, options: OptimizeOptions, lr_scale,
-                   outside=None, valid=None, neighbours=None) -> tuple[OptimizerState, StepRecord]:
+                   outside=None, valid=None, neighbours=None, factor=None) -> tuple[OptimizerState, StepRecord]:
     """The body of `optimize_block` without `jit` or argument checks (to trace inside a larger jitted program).
     `valid`: with `options.device_mesh`, which views are real (`spread_views`). `neighbours`: photo
     targets: `(N, M)` neighbour views of every view (`view_neighbours`) for the photo-consistency
     term, or `(table, depths (N, H, W))` with the views' stereo depths for the `stereo` term. With a
     device mesh the table's rows and entries are slots of the `spread_views` layout, and every device
-    gets a copy of all views' cameras and targets once a block, to look its views' neighbours up in."""
+    gets a copy of all views' cameras and targets once a block, to look its views' neighbours up in.
+    `factor`: the mesh's `block_factor`, computed before and found `ok` on the host: the solves use it
+    alone (no CG fallback is traced); None: the block factors the matrix itself, with CG where that fails."""
     mesh, rest = state.mesh, state.rest_vertices
     laplacian = uniform_laplacian(mesh.faces, mesh.vertex_capacity)
     vmask = mesh.vertex_mask[:, None]
@@ -312,11 +315,13 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
         return objective(m, cams, tgt, rest_x, weights=options.weights, renderer=options.renderer,
                          render_settings=options.render, appearance=app, outside=out, neighbours=near)
 
-    factor = largesteps_factor(laplacian, options.lambda_)  # once a block: the mesh's connectivity is fixed in it
+    fallback = factor is None
+    if factor is None:  # once a block: the mesh's connectivity is fixed in it
+        factor = largesteps_factor(laplacian, options.lambda_)
 
     def solve(b, x0):
         return largesteps_solve(laplacian, b, options.lambda_, x0, rtol=options.cg_rtol, max_iter=options.cg_max_iter,
-                                factor=factor)
+                                factor=factor, fallback=fallback)
 
     geometry = (mesh.faces, mesh.n_vertices, mesh.n_faces, rest)  # passed, not closed over (device meshes)
     stereo = None
@@ -363,6 +368,13 @@ def optimize_steps(state: OptimizerState, cameras, targets, n_steps: int, option
 
 
 _optimize_block_jit = jax.jit(optimize_steps, static_argnames=("n_steps", "options"), donate_argnames=("state",))
+
+
+@jax.jit(static_argnames=("lambda_",))
+def block_factor(mesh: Mesh, lambda_: float = DEFAULT_LAMBDA):
+    """The Cholesky factor of `I + lambda_ L` for `mesh`'s connectivity (`largesteps_factor`), as a block
+    computes it; read its `ok` on the host and pass it to `optimize_steps(..., factor=)` when it is."""
+    return largesteps_factor(uniform_laplacian(mesh.faces, mesh.vertex_capacity), lambda_)
 
 
 def optimize_block(

@@ -42,8 +42,8 @@ import numpy as np
 from jax.experimental import io_callback
 
 from jaxgenus.geometry import Cameras, RemeshOptions, RemeshStatus, euler_characteristic, remesh_in_jit
-from jaxgenus.optim import (Appearance, OptimizeOptions, OptimizerState, StepRecord, count_compilations,
-                            init_optimizer_state, optimize_steps)
+from jaxgenus.optim import (Appearance, OptimizeOptions, OptimizerState, StepRecord, block_factor,
+                            count_compilations, init_optimizer_state, optimize_steps)
 from jaxgenus.pipeline._history import CycleRecord
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.rendering import RasterPlan, plan_render, render
@@ -177,10 +177,20 @@ def cycle(state, cams, targets, valid, neighbours, lr_scale, length, *, n_steps:
 
 
 @jax.jit(static_argnames=("n_steps", "opt"), donate_argnames=("state",))
-def optimizer_block(state, cams, targets, valid, neighbours, lr_scale, *, n_steps: int, opt: OptimizeOptions):
-    """A cycle's `n_steps` optimizer steps and the faces drawn incompletely after them."""
-    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, None, valid, neighbours)
+def optimizer_block(state, cams, targets, valid, neighbours, lr_scale, factor, *, n_steps: int, opt: OptimizeOptions):
+    """A cycle's `n_steps` optimizer steps and the faces drawn incompletely after them. `factor`: the
+    mesh's `block_factor` when it is `ok` (the block then compiles no CG fallback), else None."""
+    state, record = optimize_steps(state, cams, targets, n_steps, opt, lr_scale, None, valid, neighbours, factor)
     return state, record, _overflow(state, cams, opt)
+
+
+def _known_factor(mesh, opt: OptimizeOptions):
+    """The mesh's Cholesky factor when one process's CPU computes it and it fit its buffer, else None
+    (the block factors the matrix itself and falls back to CG). Views split over devices: None."""
+    if opt.device_mesh is not None or jax.default_backend() != "cpu":
+        return None
+    factor = block_factor(mesh, opt.lambda_)
+    return factor if bool(factor.ok) else None
 
 
 _remesh_jit = jax.jit(_remesh_state, static_argnames=("options",), donate_argnames=("state",))
@@ -195,7 +205,8 @@ def _timed_cycle(state, level: Level, lr_scale: float, length: float, *, n_steps
     with count_compilations() as counts:
         t_start = _clock_us(None)
         state, record, overflow = optimizer_block(state, level.cameras, level.targets, level.valid,
-                                                  level.neighbours, jnp.float32(lr_scale), n_steps=n_steps, opt=opt)
+                                                  level.neighbours, jnp.float32(lr_scale), _known_factor(state.mesh, opt),
+                                                  n_steps=n_steps, opt=opt)
         record, overflow = jax.device_get((record, overflow))
         t_opt = _clock_us(None)
         status = np.int32(-1)
