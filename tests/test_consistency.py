@@ -244,10 +244,7 @@ def test_reconstruct_with_photo_consistency_reports_residuals(tmp_path):
     # visual hull it started from, the verdict says so (the rule itself: test_capture_layouts)
     warnings = rec.history["warnings"]
     assert rec.genus == 1 and (rec.history["ok"] or any(w.startswith("the photos agree less") for w in warnings)), warnings
-    off = jg.reconstruct(straight, cams, 1, targets="photo", options=opts.updated(consistency=0.0, steps_per_cycle=3),
-                         key=jax.random.key(0))
-    assert off.history["photo_consistency"] is None and np.all(np.asarray(off.history["consistency"]) == 0)
-    assert len(off.history["cycles"]) == 2 and len(off.history["loss"]) == 6  # no polish without the term
+    # without the term: no residuals and no polish (test_unseen's photo fits, which turn it off)
 
 
 def test_occluding_contours_inside_the_silhouette_are_left_out():

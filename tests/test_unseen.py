@@ -104,9 +104,9 @@ def test_reconstruct_fills_unseen_surface_of_photo_targets_only():
     cams = _ring(6, 30.0, 3.5)
     photos = raycast_lambert(cams, tm, light_direction=(0.3, 0.5, 1.0), ambient=0.6)
     # the fit's photo-consistency and stereo terms are tested elsewhere: off, so the fit compiles the plain
-    # photo program
+    # photo program; polish cycles asked for, but they polish by photo-consistency: none without it
     opts = jg.ReconstructOptions().updated(n_cycles=1, steps_per_cycle=10, initial_faces=600, refits=0,
-                                           subdivide=False, consistency=0.0, stereo=0.0)
+                                           subdivide=False, consistency=0.0, stereo=0.0, polish_cycles=2)
     lines, quiet = [], []
     on = jg.reconstruct(photos, cams, 1, targets="photo", options=opts, key=jax.random.key(0), log=lines.append)
     off = jg.reconstruct(photos, cams, 1, targets="photo", options=opts.updated(fill_unseen=False),
@@ -118,3 +118,6 @@ def test_reconstruct_fills_unseen_surface_of_photo_targets_only():
     moved = fill_unseen((vo, fo), cams).moved
     np.testing.assert_allclose(vf[~moved], vo[~moved], atol=1e-6)  # the fill moves only what no camera sees
     assert on.genus == off.genus == 1
+    for rec in (on, off):  # without photo-consistency: no residuals, no polish cycles
+        assert rec.history["photo_consistency"] is None and np.all(np.asarray(rec.history["consistency"]) == 0)
+        assert len(rec.history["cycles"]) == 1 and len(rec.history["loss"]) == 10
