@@ -402,7 +402,7 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         loss = float(per_view.mean())
         return True
 
-    used, tries = set(), 0
+    used, carved, tries = set(), set(), 0
     for part in _carved_parts(solid, cams, targets, min_radius) if free_space else ():
         if len(records) == limit or tries == max_tries:
             break
@@ -411,8 +411,10 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
         if not near:  # nor is a part where the normal images agree with the fit: no sign of a hole
             continue
         tries += 1
+        # the patches a kept carve reaches count as explained, but a hole there is still tested: a part
+        # carved from under a plate reaches the patches of holes that need their own cut
         if keep([(hit[2], hit[0])], hit[0]["centre"], sum(found[i].misfit for i in near)):
-            used.update(near)
+            carved.update(near)
     for i, j in _tunnel_pairs(candidates):  # tunnels between two mouths first: a hole into one then finds it
         if len(records) == limit:
             break
@@ -437,5 +439,5 @@ def hole_tests(vertices, faces, cams: Cameras, targets, count: int | None = None
                                          "radius": cand.radius * scale, "depth": hit[0]}))
         if keep(options, cand.centre, cand.misfit):
             used.add(i)
-    open_share = max((c.misfit for i, c in enumerate(found) if i not in used), default=0.0)
+    open_share = max((c.misfit for i, c in enumerate(found) if i not in used | carved), default=0.0)
     return HoleTests(v, f, records, tested, float(open_share))
