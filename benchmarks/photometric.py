@@ -21,7 +21,8 @@ a fresh process with default `ReconstructOptions` (`--options` overrides):
 * `photo`: the RGBA photos, `targets="photo"` (per albedo case);
 * `normals`: ray-cast normal maps of the same views (the upper reference).
 
-Metrics: CD L1 and volume IoU after ICP (docs/metrics.md), the genus, seconds,
+Metrics: CD L1 and volume IoU after ICP (docs/metrics.md), the mean angle between the
+result's normals and the true surface's nearest ones (`normal_angle`), the genus, seconds,
 the verdict; for photo runs the recovered albedo (`Reconstruction.albedo`)
 against the true albedo function at the result's ICP-aligned vertices: the
 Pearson correlation per channel (textured; for a constant albedo its spread,
@@ -91,6 +92,7 @@ def run_one(shape: str, albedo: str, targets: str, res: int, views: int, options
     cd = jg.metrics.chamfer_distance((aligned, f), gt)
     row = dict(shape=shape, albedo=albedo if targets == "photo" else "-", targets=targets, res=res, views=views,
                true_genus=genus, genus=rec.genus, cd_l1=cd.l1, iou=jg.metrics.volume_iou((aligned, f), gt),
+               normal_deg=normal_angle((aligned, f), gt),
                seconds=rec.history["seconds"], ok=rec.history["ok"], warnings=rec.history["warnings"],
                options=json.loads(json.dumps(options, default=str)), seed=seed)
     if rec.albedo is not None:
@@ -103,6 +105,21 @@ def run_one(shape: str, albedo: str, targets: str, res: int, views: int, options
         row["photo_error_median"] = float(np.median(rec.history["photo_error"]))
         _, row["light_mean"] = jg.rendering.directional_lighting(LIGHT, AMBIENT)
     return row
+
+
+def normal_angle(mesh, gt, n: int = 100_000) -> float:
+    """The mean angle (degrees) between the result's face normals at area-uniform samples of its
+    surface and the normal of the true surface's nearest face (trimesh's closest point; seed 0)."""
+    import trimesh
+
+    v, f = mesh
+    ours = trimesh.Trimesh(np.asarray(v, np.float64), np.asarray(f), process=False)
+    tv, tf = gt.to_numpy()
+    truth = trimesh.Trimesh(np.asarray(tv, np.float64), np.asarray(tf), process=False)
+    points, face = trimesh.sample.sample_surface(ours, n, seed=0)
+    _, _, near = trimesh.proximity.closest_point(truth, points)
+    cos = np.einsum("ij,ij->i", ours.face_normals[face], truth.face_normals[near])
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).mean())
 
 
 def _bar(rows) -> list[str]:
@@ -121,6 +138,9 @@ def _bar(rows) -> list[str]:
             if r["albedo"] == "highfreq" and nrm is not None:
                 rn = r["cd_l1"] / nrm["cd_l1"]
                 checks.append(f"CD {rn:.2f}x the normal maps' (<= 1.3x): {'yes' if rn <= 1.3 else 'NO'}")
+                if "normal_deg" in r and "normal_deg" in nrm:
+                    checks.append(f"normal angle {r['normal_deg']:.2f} deg, {r['normal_deg'] / nrm['normal_deg']:.2f}x the "
+                                  "normal maps'")
             if "albedo_corr" in r and r["albedo"] != "highfreq":
                 checks.append(f"albedo corr >= 0.8: {'yes' if min(r['albedo_corr']) >= 0.8 else 'NO'}")
             lines.append(f"- {shape}, {r['albedo']} albedo: " + "; ".join(checks))
@@ -130,8 +150,9 @@ def _bar(rows) -> list[str]:
 def write_report(rows, out: Path):
     order = {"silhouette": 0, "photo": 1, "normals": 2}
     rows = sorted(rows, key=lambda r: (r["shape"], order[r["targets"]], r["albedo"]))
-    lines = ["| shape | albedo | targets | CD L1 | CD / silhouette CD | IoU | genus ok | albedo corr (r, g, b) or spread "
-             "| albedo / truth | photo error | seconds | verdict |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| shape | albedo | targets | CD L1 | CD / silhouette CD | IoU | normal angle deg | genus ok | albedo corr "
+             "(r, g, b) or spread | albedo / truth | photo error | seconds | verdict |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         sil = next((s for s in rows if s["shape"] == r["shape"] and s["targets"] == "silhouette"), None)
         rel = f"{r['cd_l1'] / sil['cd_l1']:.2f}" if sil else ""
@@ -140,7 +161,8 @@ def write_report(rows, out: Path):
             alb = f"spread {alb}"
         ratio = ", ".join(f"{x:.3f}" for x in r.get("albedo_ratio", []))
         perr = f"{r['photo_error_median']:.4f}" if "photo_error_median" in r else ""
-        lines.append(f"| {r['shape']} | {r['albedo']} | {r['targets']} | {r['cd_l1']:.5f} | {rel} | {r['iou']:.4f} | "
+        angle = f"{r['normal_deg']:.2f}" if "normal_deg" in r else ""
+        lines.append(f"| {r['shape']} | {r['albedo']} | {r['targets']} | {r['cd_l1']:.5f} | {rel} | {r['iou']:.4f} | {angle} | "
                      f"{'yes' if r['genus'] == r['true_genus'] else 'NO'} | {alb} | {ratio} | {perr} | "
                      f"{r['seconds']:.0f} | {'ok' if r['ok'] else 'NOT OK'} |")
     text = "\n".join(lines + [""] + _bar(rows)) + "\n"

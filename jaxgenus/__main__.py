@@ -188,8 +188,9 @@ def _captured(args, say, devices):
 
     share = jax.process_count() > 1
     masks, background, threshold = _mask_source(args.masks)
+    files = not str(args.images).lower().endswith(".npy")  # 8-bit pixels as read: a quarter of the memory
     loaded = jg.load_images(args.images, masks=masks, background=background, targets=args.targets,
-                            background_threshold=threshold,
+                            background_threshold=threshold, dtype=np.uint8 if files else np.float32,
                             views=(lambda n: jg.optim.held_views(n, devices)) if share else None)
     size = loaded.images.shape[1:3]
     cams, cam_names = jg.load_cameras(args.cameras, image_size=tuple(int(x) for x in size))

@@ -532,3 +532,32 @@ def test_photos_load_and_check_without_copies_of_the_whole_stack(tmp_path):
     a = loaded.images[..., 3:]
     assert np.array_equal(targets.fit, np.concatenate([loaded.images[..., :3] * a, a], -1))
     assert np.array_equal(targets.alpha, loaded.images[..., 3]) and np.shares_memory(targets.alpha, targets.fit)
+
+
+def test_photos_as_8bit_pixels_give_the_same_targets(tmp_path):
+    """`dtype=np.uint8` keeps 8-bit photos and masks as their pixels (a quarter of the float32 stack):
+    the same values / 255 as the float32 reading, to the bit, and `check_targets` reads uint8 stacks
+    as value / 255, so both give the same `Targets`. A 0/1 uint8 stack reads as empty silhouettes,
+    said with how uint8 is read; other dtypes are refused."""
+    import jaxgenus as jg
+    from jaxgenus.capture._targets import check_targets
+
+    n, h, w = 3, 24, 32
+    for i in range(n):
+        Image.fromarray(u8(RNG.random((h, w, 3)))).save(tmp_path / f"{i}.jpg", quality=90)
+        Image.fromarray(u8(disc(h, w, r=6.0 + i))).save(tmp_path / f"{i}_mask.png")
+    photos = sorted(str(p) for p in tmp_path.glob("*.jpg"))
+    masks = str(tmp_path / "*_mask.png")
+    cams = jg.sphere_cameras(n, resolution=(h, w))
+    for kw in (dict(masks=masks), dict(background="black"), dict(masks=masks, targets="silhouette")):
+        full, small = load_images(photos, **kw), load_images(photos, dtype=np.uint8, **kw)
+        assert small.images.dtype == np.uint8 and small.images.nbytes * 4 == full.images.nbytes
+        assert small.targets == full.targets and small.source == full.source
+        assert np.array_equal(small.images / np.float32(255.0), full.images), kw
+        a, b = check_targets(full.images, cams), check_targets(small.images, cams)
+        assert a.kind == b.kind and np.array_equal(a.fit, b.fit) and np.array_equal(a.alpha, b.alpha)
+    binary = (full.images > 0.5).astype(np.uint8)
+    with pytest.raises(ValueError, match=r"empty silhouettes .*uint8 images are read as value / 255"):
+        check_targets(binary, cams)
+    with pytest.raises(ValueError, match="dtype must be np.float32 or np.uint8"):
+        load_images(photos, masks=masks, dtype=np.float64)

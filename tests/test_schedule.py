@@ -92,6 +92,9 @@ def test_verdict_chunks_share_one_program(monkeypatch):
     assert chunked[0] == whole[0] and min(whole[0]) > 0.8
     assert np.allclose(chunked[1], whole[1], rtol=1e-5) and np.allclose(chunked[2], whole[2], rtol=1e-4, atol=1e-6, equal_nan=True)
     assert np.isfinite(whole[2]).sum() >= 5 and np.isfinite(whole[2][7:]).any(), whole[2]
+    q = np.rint(photos * 255).astype(np.uint8)  # 8-bit photos, as the CLI holds them: read as value / 255
+    errors = _verdict.photo_errors(mesh, cams, q, albedo, lighting, sigma=0.1)
+    assert errors == _verdict.photo_errors(mesh, cams, q / np.float32(255), albedo, lighting, sigma=0.1)
 
 
 def test_detail_floor_follows_the_face_budget():

@@ -9,7 +9,7 @@ from jaxgenus.capture._hull import HullOccupancy, check_region, cut_views, hull_
 from jaxgenus.capture._images import LoadedImages, load_images
 from jaxgenus.capture._pairing import pair_images
 from jaxgenus.capture._stereo import StereoDepths, carved_occupancy, consistent_depths, stereo_depths
-from jaxgenus.capture._targets import TARGET_KINDS, Targets, check_targets
+from jaxgenus.capture._targets import TARGET_KINDS, Targets, check_targets, unit_float
 
 __all__ = [
     "LoadedImages",
@@ -36,4 +36,5 @@ __all__ = [
     "scene_frame",
     "visual_hull",
     "visual_hull_bounds",
+    "unit_float",
 ]

@@ -12,7 +12,7 @@ import numpy as np
 
 from jaxgenus.geometry import Cameras
 from jaxgenus.geometry import Mesh
-from jaxgenus.capture._targets import check_targets
+from jaxgenus.capture._targets import check_targets, unit_float
 from jaxgenus.geometry import connected_components
 
 __all__ = ["HullOccupancy", "carved_points", "check_region", "cut_views", "hull_occupancy", "hull_thickness",
@@ -42,7 +42,7 @@ def region_misses(alpha, cams: Cameras, region, *, step: int = 4) -> np.ndarray:
     eyes = -np.einsum("nji,nj->ni", rot, trans)
     out = np.zeros(len(cams))
     for i in range(len(cams)):
-        rows, cols = np.nonzero(np.asarray(alpha[i])[::step, ::step] >= 0.5)
+        rows, cols = np.nonzero(unit_float(np.asarray(alpha[i])[::step, ::step]) >= 0.5)
         if not len(rows):
             continue
         u, v = cols * step + 0.5, rows * step + 0.5

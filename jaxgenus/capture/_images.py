@@ -18,7 +18,7 @@ import numpy as np
 from jaxtyping import Float
 
 from jaxgenus.capture._mask_pixels import grey_mask, is_grey, luminance, mask_like
-from jaxgenus.capture._targets import TARGET_KINDS as TARGETS, inferred_targets
+from jaxgenus.capture._targets import TARGET_KINDS as TARGETS, inferred_targets, unit_float as _float
 
 __all__ = ["BACKGROUND_THRESHOLD", "IMAGE_EXTENSIONS", "LoadedImages", "few", "load_images"]
 
@@ -34,7 +34,8 @@ class LoadedImages(NamedTuple):
 
     Attributes:
         images: `(N, H, W, 4)` float32 RGBA in [0, 1] (A = mask), or `(N, H, W, 1)`
-            silhouettes when `targets == "silhouette"`.
+            silhouettes when `targets == "silhouette"`; uint8 (value / 255) when read with
+            `dtype=np.uint8`.
         names: the images' file stems in reading order, or None for an array.
         targets: `"silhouette"`, `"normals"` (RGB = (n + 1) / 2 world normals) or `"photo"`.
         source: one line saying what was read and how the targets were chosen.
@@ -82,11 +83,12 @@ def _checked(arr: np.ndarray, what: str) -> np.ndarray:
     raise ValueError(f"{what}: dtype {arr.dtype} is not supported (use uint8, uint16, bool or float in [0, 1])")
 
 
-def _float(arr: np.ndarray) -> np.ndarray:
-    """Pixels as read (`_checked`) in [0, 1] as float32: uint8 / 255, uint16 / 65535, bool -> {0, 1}."""
-    if arr.dtype in (np.uint8, np.uint16):
-        return arr.astype(np.float32) / np.float32(255.0 if arr.dtype == np.uint8 else 65535.0)
-    return np.asarray(arr, np.float32)
+def _put(out: np.ndarray, values) -> None:
+    """Values in [0, 1] written into `out`: as they are (float32), or as 8-bit pixels (uint8, rounded)."""
+    if out.dtype == np.uint8:
+        np.rint(np.asarray(values, np.float32) * np.float32(255.0), out=out, casting="unsafe")
+    else:
+        out[...] = values
 
 
 def _scale(arr: np.ndarray, what: str) -> np.ndarray:
@@ -288,7 +290,9 @@ def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int],
             n = len(views)
         if arr.shape[-1] != 1 or arr.shape[:3] != (n,) + size:
             raise ValueError(f"masks: expected an array of shape ({n}, {size[0]}, {size[1]}[, 1]) for the images, got {arr.shape}")
-        return arr[..., 0], f"{n} masks from an array, paired by order"
+        if into is not None:
+            _put(into, arr[..., 0])
+        return arr[..., 0] if into is None else into, f"{n} masks from an array, paired by order"
     files = _list_files(masks, "masks")
     if photos is None and len(files) != n:
         raise ValueError(f"masks: {len(files)} mask files for an array of {n} images (they pair by sorted order)")
@@ -299,12 +303,12 @@ def _load_masks(masks, photos: list[str] | None, n: int, size: tuple[int, int],
     note = f"; {len(extra)} masks without photos ignored ({few(extra, 3)})" if extra else ""
     out = np.empty((len(pics),) + tuple(size), np.float32) if into is None else into
     for i, p in enumerate(pics):
-        out[i] = _mask(p, "masks")
+        _put(out[i], _mask(p, "masks"))
     return out, _describe(pics, f"mask files {how}{note}")
 
 
 def load_images(path, *, masks=None, background: str | None = None, targets: str | None = None,
-                background_threshold: float = BACKGROUND_THRESHOLD, views=None) -> LoadedImages:
+                background_threshold: float = BACKGROUND_THRESHOLD, views=None, dtype=np.float32) -> LoadedImages:
     """Read target images the way users have them.
 
     Args:
@@ -339,6 +343,9 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         views: read only these images (increasing indices in reading order, or a function of the
             image count giving them, e.g. `lambda n: jaxgenus.optim.held_views(n)` for the views
             this process renders when processes share a capture) and their masks; None: all.
+        dtype: `np.float32` (default), or `np.uint8`: the images as 8-bit pixels (value / 255, as
+            `reconstruct` reads them), a quarter of the memory; exact for 8-bit files and binary masks,
+            rounded to 1/255 otherwise (16-bit files, soft masks of products, float arrays).
 
     Returns:
         `LoadedImages(images, names, targets, source)`; nothing passed in is modified or aliased.
@@ -353,6 +360,8 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
     if masks is not None and background is not None:
         raise ValueError("masks and background: give one way of finding the masks, not both")
     derive = masks is not None or background is not None
+    if dtype not in (np.float32, np.uint8, "float32", "uint8") and not (isinstance(dtype, np.dtype) and dtype.name in ("float32", "uint8")):
+        raise ValueError(f"dtype must be np.float32 or np.uint8, got {dtype!r}")
 
     if _is_array(path):
         arr, source, chosen, n_all = _array(path, "images", views)
@@ -377,32 +386,34 @@ def load_images(path, *, masks=None, background: str | None = None, targets: str
         odd = next((p for p, g in zip(pics, grey) if not g), None)
         if odd is not None:
             raise ValueError(f"images: {odd.path} is a colour image but {first} is a grayscale mask; all images must be of one kind")
-        images = np.stack([_mask(p, "images", check_grey=files is not None) for p in pics])[..., None]
+        images = np.empty((len(pics),) + pics[0].pixels.shape[:2] + (1,), dtype)
+        for view, p in zip(images, pics):
+            _put(view[..., 0], _mask(p, "images", check_grey=files is not None))
         source = _describe(pics, "grayscale mask files, silhouettes") if files else source + ", silhouettes"
     else:
-        images = np.empty((len(pics),) + pics[0].pixels.shape[:2] + (4,), np.float32)  # filled view by view
+        images = np.empty((len(pics),) + pics[0].pixels.shape[:2] + (4,), dtype)  # filled view by view
         for i, (p, g) in enumerate(zip(pics, grey)):
-            images[i, ..., :3] = _float(p.pixels[..., :1] if g else p.pixels[..., :3])
+            _put(images[i, ..., :3], _float(p.pixels[..., :1] if g else p.pixels[..., :3]))
         has_alpha = any(p.pixels.shape[-1] in (2, 4) and _float(p.pixels[..., -1]).min() < 1.0 for p in pics)
         if files:
             noun = ("grayscale photos" if all(grey) else "photos") if derive else "RGBA files" if has_alpha else "RGB files"
             source = _describe(pics, noun)
         if masks is not None:
-            m, how = _load_masks(masks, files, n_all, images.shape[1:3], chosen, into=images[..., 3])
-            images[..., 3] = m  # (mask files were written there already)
+            _, how = _load_masks(masks, files, n_all, images.shape[1:3], chosen, into=images[..., 3])
             source += f" + {how}" + (", replacing their alpha" if has_alpha else "")
         elif background is not None:
             if has_alpha:
                 raise ValueError(f"background: the images ({first}) have alpha masks already; background is for photos without one")
             for view in images:
-                view[..., 3] = np.abs(view[..., :3] - (0.0 if background == "black" else 1.0)).max(-1) > background_threshold
+                _put(view[..., 3], np.abs(_float(view[..., :3]) - (0.0 if background == "black" else 1.0)).max(-1)
+                     > background_threshold)
             source += f", masks where max |RGB - {background}| > {background_threshold}"
         elif has_alpha:
             odd = next((p for p in pics if p.pixels.shape[-1] not in (2, 4)), None)
             if odd is not None:
                 raise ValueError(f"images: {odd.path} has no alpha channel but {first} has one; all images must be of one kind")
             for view, p in zip(images, pics):
-                view[..., 3] = _float(p.pixels[..., -1])
+                _put(view[..., 3], _float(p.pixels[..., -1]))
             source += ", alpha = mask"
         else:
             raise ValueError(f"images: {first} has no mask (RGB without alpha, or alpha opaque everywhere); give {_HOW_TO_MASK}")

@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxgenus.geometry import Cameras
 
-__all__ = ["TARGET_KINDS", "Targets", "check_targets", "infer_targets", "inferred_targets"]
+__all__ = ["TARGET_KINDS", "Targets", "check_targets", "infer_targets", "inferred_targets", "unit_float"]
 
 TARGET_KINDS = ("silhouette", "normals", "photo")
 # normal-map test (infer_targets) over pixels with A >= 0.5, d = | ||2 rgb - 1|| - 1 |:
@@ -53,11 +53,20 @@ class Targets(NamedTuple):
     inferred: bool = False
 
 
+def unit_float(pixels) -> np.ndarray:
+    """`pixels` in [0, 1] as float32: uint8 / 255, uint16 / 65535 (8- and 16-bit images as read),
+    anything else as it is. Used a view at a time, so a stack of 8-bit photos is never held as floats."""
+    arr = np.asarray(pixels)
+    if arr.dtype in (np.uint8, np.uint16):
+        return arr.astype(np.float32) / np.float32(255.0 if arr.dtype == np.uint8 else 65535.0)
+    return np.asarray(arr, np.float32)
+
+
 def inferred_targets(images: np.ndarray) -> tuple[str, str]:
     """`infer_targets` of an `(N, H, W, C)` stack, and why, in one line."""
     if images.shape[-1] == 1:
         return "silhouette", "silhouettes only"
-    flat = images.reshape(-1, 4)[:: images[..., 0].size // 4_000_000 + 1]  # a million covered pixels: plenty for a median
+    flat = unit_float(images.reshape(-1, 4)[:: images[..., 0].size // 4_000_000 + 1])  # a million covered pixels: plenty
     rgb = flat[flat[:, 3] >= 0.5, :3]
     rgb = rgb[:: len(rgb) // 1_000_000 + 1]
     if len(rgb) < _NORMALS_MIN_PIXELS:
@@ -99,7 +108,8 @@ def check_targets(images, cams: Cameras, kind: str | None = None) -> Targets:
     """Validate target `images` against `cams` and return them as `Targets`.
 
     `images` is `(N, H, W, 4)` RGBA in [0, 1] (RGB = (n + 1) / 2 world normals,
-    A = silhouette) or `(N, H, W)` / `(N, H, W, 1)` silhouettes. `kind` is one of
+    A = silhouette) or `(N, H, W)` / `(N, H, W, 1)` silhouettes; uint8 and uint16 images are read
+    as value / 255 and / 65535, as image files are (`unit_float`). `kind` is one of
     `TARGET_KINDS` or None (inferred). Raises `ValueError` naming the problem
     (dtype, shape, view count, image size, NaN, range, empty silhouettes, a kind
     the images cannot be).
@@ -110,7 +120,7 @@ def check_targets(images, cams: Cameras, kind: str | None = None) -> Targets:
         raise ValueError(f"cams must be a jaxgenus.Cameras, got {type(cams).__name__}")
     img = np.asarray(images)
     if img.dtype == bool or not (np.issubdtype(img.dtype, np.floating) or np.issubdtype(img.dtype, np.integer)):
-        raise ValueError(f"images must be a float array in [0, 1], got dtype {img.dtype}")
+        raise ValueError(f"images must be a float array in [0, 1] (or uint8 / uint16 pixels), got dtype {img.dtype}")
     if img.ndim == 3:
         img = img[..., None]
     if img.ndim != 4 or img.shape[-1] not in (1, 4):
@@ -121,20 +131,20 @@ def check_targets(images, cams: Cameras, kind: str | None = None) -> Targets:
     if (h, w) != (cams.height, cams.width):
         raise ValueError(f"images are {h}x{w} but cams expect {cams.height}x{cams.width} (height x width)")
     _check_values(img)
-    empty = np.flatnonzero([view[..., -1].max() < 0.5 for view in img])
+    empty = np.flatnonzero([unit_float(view[..., -1]).max() < 0.5 for view in img])
     if empty.size:
-        raise ValueError(f"images: empty silhouettes (no alpha >= 0.5) in views {empty.tolist()}")
+        scaled = f" ({img.dtype} images are read as value / {np.iinfo(img.dtype).max})" if img.dtype in (np.uint8, np.uint16) else ""
+        raise ValueError(f"images: empty silhouettes (no alpha >= 0.5) in views {empty.tolist()}{scaled}")
     if img.shape[-1] == 1 and kind not in (None, "silhouette"):
         raise ValueError(f"targets={kind!r} needs RGBA images (N, H, W, 4), got silhouettes {np.shape(images)}")
     inferred = kind is None
     kind = "silhouette" if img.shape[-1] == 1 else infer_targets(img) if inferred else kind
-    if kind == "photo":  # colour premultiplied by A, written view by view (no temporary of the whole stack)
-        fit = np.empty((n, h, w, 4), np.float32)
-        for out, view in zip(fit, img):
-            np.multiply(view[..., :3], view[..., 3:], out=out[..., :3], dtype=np.float32)
-            out[..., 3] = view[..., 3]
-    else:  # a float32 copy (of alpha alone for silhouettes of RGBA images)
-        fit = np.array(img if kind == "normals" or img.shape[-1] == 1 else img[..., 3:], np.float32)
+    src = img[..., -1:] if kind == "silhouette" else img  # alpha alone for silhouettes of RGBA images
+    fit = np.empty(src.shape, np.float32)  # written view by view (no temporary of the whole stack)
+    for out, view in zip(fit, src):
+        out[...] = unit_float(view)
+        if kind == "photo":  # colour premultiplied by A
+            out[..., :3] *= out[..., 3:]
     normals = fit[..., :3] * 2.0 - 1.0 if kind == "normals" else None
     return Targets(kind, fit[..., -1], normals, fit, inferred)
 
@@ -143,7 +153,7 @@ def _check_values(img: np.ndarray) -> None:
     """A `ValueError` unless every pixel of `img` is finite and in [0, 1]; view by view (no copy of the stack)."""
     lo, hi = np.inf, -np.inf
     for view in img:
-        view = np.asarray(view, np.float32)
+        view = unit_float(view)
         if not np.all(np.isfinite(view)):
             raise ValueError("images contain NaN or inf pixels")
         lo, hi = min(lo, float(view.min())), max(hi, float(view.max()))

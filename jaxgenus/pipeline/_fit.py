@@ -136,7 +136,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)
-    photos = np.asarray(setup.images, np.float32) if setup.targets.kind == "photo" else None
+    photos = setup.images if setup.targets.kind == "photo" else None
     finest = levels[-1]
     consistency = None
     if finest.table is not None:  # the residual at the finest level fitted (straight colours), views in order

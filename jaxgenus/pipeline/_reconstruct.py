@@ -173,7 +173,9 @@ def reconstruct(
     Args:
         images: `(N, H, W)` / `(N, H, W, 1)` silhouettes, or `(N, H, W, 4)` RGBA in
             [0, 1] whose A is the silhouette and whose RGB is either world normals
-            `(n + 1) / 2` (what `render_targets` produces) or a photo.
+            `(n + 1) / 2` (what `render_targets` produces) or a photo; floats, or uint8 /
+            uint16 pixels read as value / 255 / 65535 (8-bit photos held as read take a quarter
+            of the memory: `load_images(..., dtype=np.uint8)`).
         cams: a `Cameras` with N views of the images' size, in any units and placement.
         genus: the object's genus (int >= 0), or None to estimate it from the images
             (`history["genus_estimate"]`, a `GenusEstimate`; `genus_estimate` alone gives the
@@ -263,7 +265,7 @@ def _as_written(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -
     if rec.albedo is not None:
         albedo = np.zeros((mesh.vertex_capacity, 3), np.float32)
         albedo[: len(rec.albedo)] = rec.albedo
-        appearance, photos = (albedo, rec.lighting), np.asarray(setup.images, np.float32)
+        appearance, photos = (albedo, rec.lighting), setup.images
     evidence = Evidence(mesh, mesh, setup.cams, setup.targets, h.steps, h.cycles, rec.genus_ok, appearance, photos,
                         carved_start=h.start.startswith("visual_hull"), held=setup.held,
                         start_iou=list(h.start_silhouette_iou))

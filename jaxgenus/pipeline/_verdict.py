@@ -51,7 +51,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from jaxgenus.capture import Targets
+from jaxgenus.capture import Targets, unit_float
 from jaxgenus.geometry import Cameras, Mesh
 from jaxgenus.optim import consistency_windows, gathered_views
 from jaxgenus.pipeline._history import History
@@ -132,13 +132,14 @@ def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: floa
 def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float,
                  shading: str = "flat") -> list[float]:
     """Per view, the mean absolute RGB difference between `render_photo` and `photos (N, H, W, 4)`
-    (straight, not premultiplied) over the pixels both cover at alpha 0.5 (NaN where none).
+    (straight, not premultiplied; uint8 / uint16 as `unit_float` reads them) over the pixels both cover
+    at alpha 0.5 (NaN where none).
     Views are rendered in chunks."""
     errors, plan = [], _plan(mesh, cams, sigma)
     for idx, n in _chunks(cams):
         img = np.asarray(render_photo(mesh, cams[idx], albedo, lighting, sigma=sigma, shading=shading, plan=plan))
         for k, i in enumerate(idx[:n]):
-            photo = np.asarray(photos[i])
+            photo = unit_float(photos[i])
             both = (img[k, ..., 3] >= 0.5) & (photo[..., 3] >= 0.5)
             rgb = img[k][both][:, :3].astype(np.float64) / np.maximum(img[k][both][:, 3:], 1e-6)
             err = np.abs(rgb - photo[both][:, :3].astype(np.float64)).mean(axis=-1)
