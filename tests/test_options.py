@@ -73,20 +73,20 @@ def test_photos_that_resolve_more_detail_get_a_larger_face_budget():
     face = lambda pixel: math.sqrt(3.0) / 4.0 * (DETAIL_EDGE * pixel) ** 2
     pixel_for = lambda faces: math.sqrt(sphere.area / faces / (math.sqrt(3.0) / 4.0)) / DETAIL_EDGE
     o = jg.ReconstructOptions()
-    budget, resolved = detail_budget(o, "photo", 24, hull, pixel_for(100_000))
+    budget, resolved = detail_budget(o, "photo", hull, pixel_for(100_000))
     assert budget == o.detail_faces == 40000 and abs(resolved - sphere.area / face(pixel_for(100_000))) <= 1
-    assert detail_budget(o.replaced(max_faces=5000), "photo", 24, hull, pixel_for(25_500))[0] == 25000  # in 1000s
-    assert detail_budget(o.updated(max_faces=5000), "photo", 24, hull, pixel_for(25_500))[0] == 5000  # held as given
+    assert detail_budget(o.replaced(max_faces=5000), "photo", hull, pixel_for(25_500))[0] == 25000  # in 1000s
+    assert detail_budget(o.updated(max_faces=5000), "photo", hull, pixel_for(25_500))[0] == 5000  # held as given
     # under 4 x max_faces (edges under 8 px at the budget): the photos' finest level is fitted already
-    assert detail_budget(o, "photo", 24, hull, pixel_for(40_000))[0] == 12000
-    assert detail_budget(o, "photo", 24, hull, pixel_for(49_000))[0] == 40000
+    assert detail_budget(o, "photo", hull, pixel_for(40_000))[0] == 12000
+    assert detail_budget(o, "photo", hull, pixel_for(49_000))[0] == 40000
     held = [o.updated(detail_faces=0), o.updated(consistency=0.0), o.replaced(max_faces=50000)]
-    assert [detail_budget(h, "photo", 24, hull, pixel_for(100_000))[0] for h in held] == [12000, 12000, 50000]
-    assert detail_budget(o, "silhouette", 24, hull, pixel_for(100_000)) == (12000, 0)
-    assert detail_budget(o, "normals", 24, hull, pixel_for(100_000)) == (12000, 0)
-    assert detail_budget(o, "photo", 24, None, pixel_for(100_000)) == (12000, 0)
+    assert [detail_budget(h, "photo", hull, pixel_for(100_000))[0] for h in held] == [12000, 12000, 50000]
+    assert detail_budget(o, "silhouette", hull, pixel_for(100_000)) == (12000, 0)
+    assert detail_budget(o, "normals", hull, pixel_for(100_000)) == (12000, 0)
+    assert detail_budget(o, "photo", None, pixel_for(100_000)) == (12000, 0)
     nic = jg.ReconstructOptions.nicolet()
-    assert detail_budget(nic, "photo", 24, hull, pixel_for(100_000)) == (nic.initial_faces, 0)  # no remeshing
+    assert detail_budget(nic, "photo", hull, pixel_for(100_000)) == (nic.initial_faces, 0)  # no remeshing
     with pytest.raises(ValueError, match="detail_faces"):
         jg.ReconstructOptions(detail_faces=-1)
     with pytest.raises(ValueError, match="polish_cycles"):

@@ -146,7 +146,7 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     def weights(name, options, factor=1):
         lines, level = [], photos[name] if isinstance(name, str) else name
         level = level if factor == 1 else pyramid_level(level, factor)
-        fitted = fine_texture(options, "photo", level, len(cams), lines.append)
+        fitted = fine_texture(options, "photo", level, lines.append)
         w = fitted.optimize.weights
         polish.append(fitted.polish_cycles)
         adaptive.append(fitted.remesh_options.adaptive)
@@ -163,9 +163,9 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     assert adaptive[-1] and not base.remesh_options.adaptive
     assert cycles[-1] == t["n_cycles"] == 5 and base.n_cycles == 4
     # photos that resolve 4x the budget's faces or more (a DTU-class capture) keep the cycles as set
-    detailed = fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget)
+    detailed = fine_texture(base, "photo", photos["cells"], print, 4 * base.face_budget)
     assert detailed.n_cycles == 4 and detailed.polish_cycles == t["polish_cycles"]
-    assert fine_texture(base, "photo", photos["cells"], len(cams), print, 4 * base.face_budget - 1).n_cycles == 5
+    assert fine_texture(base, "photo", photos["cells"], print, 4 * base.face_budget - 1).n_cycles == 5
     kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1, adaptive=True)
     kept = kept.updated(n_cycles=3)
     assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1 and cycles[-1] == 3  # the caller's
@@ -183,7 +183,7 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     big = jnp.repeat(jnp.repeat(photos["cells"], 4, axis=1), 4, axis=2)
     assert texture_share(big) < 0.5 * FINE_TEXTURE
     assert weights(big, base)[:4] == (1.0, 0.0, 1.0, 6.0) and weights(big, base, factor=4)[:4] == (4.0, 6.0, 0.0, 1.0)
-    assert fine_texture(base, "normals", photos["cells"], len(cams), print) is base
+    assert fine_texture(base, "normals", photos["cells"], print) is base
 
 
 def test_fine_textures_get_the_face_budget_their_photos_resolve(scene):

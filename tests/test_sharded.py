@@ -136,21 +136,27 @@ def _free_port() -> int:
 
 def test_two_processes_reconstruct_one_capture(tmp_path):
     """Two CLI processes joined by jax.distributed (CPU collectives over gloo) split the views of one
-    capture: each reads only the views its device renders, both exit 0, the first writes the one
-    mesh, as good as a one-process run."""
+    photo capture (16 ray-cast photos of a textured torus, RGBA PNGs): each reads only the views its
+    device renders, both exit 0, the first writes the one mesh, as good as a one-process run. The
+    photo method runs whole over the processes: photo-consistency (each device gathers every view's
+    photo at the level a block fits), the stereo start, the fine-texture settings, the polish and the
+    verdict's residual, and no log says a term is off."""
     import json
 
     import numpy as np
     from PIL import Image
 
     import jaxgenus as jg
+    from _meshes import torus_trimesh
+    from _raycast import cell_albedo, raycast_lambert
 
-    cams = jg.sphere_cameras(8, radius=3.0, resolution=48)
-    truth = jg.builtin_scene("torus")
-    alpha = np.asarray(jg.render_targets(truth, cams))[..., 3]
+    cams = jg.sphere_cameras(16, radius=4.5, fov_deg=40.0, resolution=48)
+    tm = torus_trimesh(1.0, 0.35, 48, 24)
+    truth = jg.Mesh.from_numpy(np.asarray(tm.vertices, np.float32), np.asarray(tm.faces))
+    photos = raycast_lambert(cams, tm, light_direction=(0.4, 0.8, 0.45), ambient=0.25, albedo=cell_albedo(0.1))
     (tmp_path / "images").mkdir()
-    for i, a in enumerate(alpha):
-        Image.fromarray((a * 255).round().astype(np.uint8)).save(tmp_path / "images" / f"view_{i}.png")
+    for i, p in enumerate(np.asarray(photos)):
+        Image.fromarray((p * 255).round().astype(np.uint8)).save(tmp_path / "images" / f"view_{i}.png")
     R, t = np.asarray(cams.rotation, float), np.asarray(cams.translation, float)
     f, c = np.asarray(cams.focal, float), np.asarray(cams.principal_point, float)
     views = [{"name": f"view_{i}.png", "K": [[f[i, 0], 0, c[i, 0]], [0, f[i, 1], c[i, 1]], [0, 0, 1]],
@@ -159,7 +165,7 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
     from jaxgenus.__main__ import main
 
     args = ["reconstruct", "--images", str(tmp_path / "images"), "--cameras", str(tmp_path / "cameras.json"), "--genus",
-            "1", "--option", "n_cycles=2", "steps_per_cycle=40"]
+            "1", "--option", "n_cycles=2", "steps_per_cycle=40", "polish_cycles=1"]
     assert main(args + ["--out", str(tmp_path / "one" / "mesh.obj")]) == 0  # one process: this one
     base = [sys.executable, "-m", "jaxgenus"] + args
     # XLA's own defaults here (not the suite's flags): one end-to-end run of the suite compiles as users do
@@ -172,31 +178,16 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, out[-2000:] + err[-3000:]
     assert "wrote" in outs[0][0] and "wrote" not in outs[1][0]  # one mesh, from process 0
-    for out, _ in outs:  # each process read only the 4 views its device renders
-        assert "4 of 8 views read here" in out and "this process holds 4 of 8 views" in out, out[:3000]
+    for out, _ in outs:  # each process read only the 8 views its device renders, and ran the photo method whole
+        assert "8 of 16 views read here" in out and "this process holds 8 of 16 views" in out, out[:3000]
+        assert "stereo: depths" in out and "fine texture" in out and "polish:" in out, out[:3000]
+        assert "not used" not in out and "split over processes" not in out, out
     history = json.loads((tmp_path / "two" / "mesh.json").read_text())
-    assert history["devices"] == 2
+    assert history["devices"] == 2 and np.max(history["consistency"]) > 0 and history["photo_consistency"] is not None
+    assert [c["polish"] for c in history["cycles"]] == [False, False, True]
     one = jg.metrics.chamfer_distance(jg.load_mesh(tmp_path / "one" / "mesh.obj"), truth).l1
     two = jg.metrics.chamfer_distance(jg.load_mesh(tmp_path / "two" / "mesh.obj"), truth).l1
     assert jg.genus(jg.load_mesh(tmp_path / "two" / "mesh.obj")) == 1 and two <= 1.15 * one, (one, two)
-
-
-def test_photo_consistency_over_processes_is_reported_not_dropped_silently():
-    """Split over processes, each holds only its own photos and the term is not computed: said. On one
-    device or several of one process the fit has a neighbour table and says nothing."""
-    import types
-
-    from jaxgenus.pipeline._fit import _device_warnings
-    from jaxgenus.pipeline._options import ReconstructOptions
-
-    opts = ReconstructOptions().updated(consistency=1.0)
-    photo = types.SimpleNamespace(targets=types.SimpleNamespace(kind="photo"))
-    split = [types.SimpleNamespace(table=None)]
-    (line,) = _device_warnings(photo, opts, split)
-    assert "not used" in line and "processes" in line
-    assert _device_warnings(photo, opts, [types.SimpleNamespace(table=np.zeros((4, 2), int))]) == []  # it is used
-    assert _device_warnings(photo, opts.updated(consistency=0.0), split) == []  # turned off
-    assert len(_device_warnings(photo, ReconstructOptions(), split)) == 1  # on by default: said
 
 
 def test_neighbours_of_a_split_layout_are_slots_of_real_views():

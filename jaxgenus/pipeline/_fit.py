@@ -67,15 +67,6 @@ def estimate_warnings(estimate: GenusEstimate | None) -> list[str]:
             f"{estimate.cue}; plausible: {list(estimate.plausible)}): give the genus if you know it"]
 
 
-def _device_warnings(setup: Setup, options: ReconstructOptions, levels: list[Level]) -> list[str]:
-    """Photo-consistency (on by default for photos) while the views are split over processes, each holding
-    only its own photos, where it is not computed."""
-    if setup.targets.kind != "photo" or options.consistency <= 0 or levels[0].table is not None:
-        return []
-    return ["photo-consistency was not used: the views were split over processes, each holding only its own "
-            "photos, where the term is not computed; fit in one process for it"]
-
-
 def _handle_warnings(handles: tuple[HandleRecord, ...]) -> list[str]:
     drilled = sum(h.source == "drilled" for h in handles)
     if not drilled:
@@ -103,7 +94,7 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
                      "views": lv.views, "window": lv.window, "pixels": lv.pixels} for lv in levels],
         devices=1 if levels[0].valid is None else int(levels[0].valid.sharding.mesh.size),
         plan=setup.plan, ok=verdict.ok, warnings=(verdict.warnings + estimate_warnings(setup.estimate) + _handle_warnings(start.handles)
-                                 + _device_warnings(setup, options, levels) + list(setup.notes)),
+                                 + list(setup.notes)),
     )
 
 
@@ -119,8 +110,6 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     user_callback = None if callback is None else (
         lambda row, m: callback(dataclasses.replace(row, **where), frame.mesh_to_world(m)))
     say(schedule_line(options, setup, levels))
-    for line in _device_warnings(setup, options, levels):
-        say(line)
     state = _initial_state(start, setup, options, key, levels[0].factor)
     if levels[0].valid is not None:  # views split over devices: the state is replicated on them
         state = place(state, levels[0].valid.sharding.mesh, split=False)
@@ -140,7 +129,7 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     finest = levels[-1]
     consistency = None
     if finest.table is not None:  # the residual at the finest level fitted (straight colours), views in order
-        level = np.asarray(pyramid_level(setup.targets.fit, finest.factor, normals=False))
+        level = setup.all_views(np.asarray(pyramid_level(setup.targets.fit, finest.factor, normals=False)))
         a = level[..., 3:]
         level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
         consistency = (scaled_cameras(setup.cams, finest.factor), level, finest.table)

@@ -27,7 +27,7 @@ from jaxgenus.optim import (place, place_held, pyramid_level, resolution_factors
 from jaxgenus.pipeline._cycles import Level
 from jaxgenus.pipeline._history import CycleRecord, Plan
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.pipeline._setup import Setup, fine_texture, split_over_processes, texture_share
+from jaxgenus.pipeline._setup import Setup, fine_texture, texture_share
 
 __all__ = ["CostModel", "PIXELS_PER_FACE", "detail_floor", "fit_factors", "levels", "planned", "schedule_line",
            "world_lengths"]
@@ -39,11 +39,10 @@ PIXELS_PER_FACE = 64
 
 
 def _consistency_used(setup: Setup, options: ReconstructOptions) -> bool:
-    """Whether the fit uses photo-consistency: photo targets, its weight > 0, and the views not split over
-    processes (on one device, or on several of one process: each looks its views' neighbours up in a
-    copy of every view's photo)."""
-    return (setup.targets.kind == "photo" and options.consistency > 0
-            and not split_over_processes(len(setup.cams), options.devices))
+    """Whether the fit uses photo-consistency: photo targets and its weight > 0 (on several devices, of
+    one process or of several, each looks its views' neighbours up in a copy of every view's photo at
+    the level a block fits)."""
+    return setup.targets.kind == "photo" and options.consistency > 0
 
 
 def _area(mesh: Mesh) -> float:
@@ -250,10 +249,11 @@ def planned(setup: Setup, genus_given: bool, say) -> Setup:
     floor = detail_floor(setup, options, hull) if hull is not None else 1
     chose, share = list(setup.choices), None
     if tg.kind == "photo":
-        photos = np.asarray(pyramid_level(tg.fit, fit_factors(setup, options, floor)[-1], normals=False))
+        # every view's, also where this process holds only some: every process makes the same plan
+        photos = setup.all_views(np.asarray(pyramid_level(tg.fit, fit_factors(setup, options, floor)[-1], normals=False)))
         share = texture_share(photos)
 
-        options = fine_texture(options, tg.kind, photos, len(cams), chose.append, setup.resolved, share=share)
+        options = fine_texture(options, tg.kind, photos, chose.append, setup.resolved, share=share)
         floor = detail_floor(setup, options, hull) if hull is not None else 1
     factors = fit_factors(setup, options, floor)
     last = factors[-1]

@@ -24,7 +24,7 @@ from jaxgenus.capture import (TARGET_KINDS, SceneFrame, Targets, carved_occupanc
                               stereo_depths, visual_hull_bounds)
 from jaxgenus.geometry import Cameras
 from jaxgenus.optim import (albedo_edges, gathered_views, pyramid_level, resolution_factors, scaled_cameras,
-                            view_neighbours, views_layout)
+                            view_neighbours)
 from jaxgenus.pipeline._history import GenusEstimate, Plan
 from jaxgenus.pipeline._options import ReconstructOptions
 from jaxgenus.pipeline._start import CLOSINGS, HullTable, estimate_genus
@@ -69,7 +69,7 @@ class Setup:
         notes: what the run should warn of, found here (views cut by the frame).
         held: the views (indices into `cams`) `images` and `targets` hold when this process
             holds only some (`reconstruct(..., views=)`); None: all of them.
-        stereo: photo targets in one process: `(depths (N, h, w), factor)`, the plane-sweep depths
+        stereo: photo targets: `(depths (N, h, w), factor)`, the plane-sweep depths (of every view)
             (canonical frame; NaN: none) of `targets.fit` downsampled by `factor`; else None.
         resolved: the faces the photos resolve (`detail_budget`); 0 where not counted.
         choices: the lines of the choices made here (the thin-structure switch, the face budget).
@@ -103,14 +103,6 @@ class Setup:
     def all_views(self, local) -> np.ndarray:
         """A per-view array of the views held here completed with every other process's views."""
         return gathered_views(local, self.held, len(self.cams))
-
-
-def split_over_processes(n_views: int, devices: int | None) -> bool:
-    """Whether a run's views are split over the devices of several processes: each process then holds
-    only its own photos, and what compares a view with its neighbours (photo-consistency, stereo, the
-    texture's measure and the detail it resolves) is not computed. Several devices of one process
-    hold every photo."""
-    return jax.process_count() > 1 and views_layout(n_views, devices)[0] is not None
 
 
 def _cut_note(alpha, say: Callable[[str], None]) -> tuple[str, ...]:
@@ -153,9 +145,9 @@ def _thin(cams: Cameras, hulls: HullTable, pixel: float, options: ReconstructOpt
     return thickness, True
 
 
-def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pixel: float) -> tuple[int, int]:
+def detail_budget(options: ReconstructOptions, kind: str, hull, pixel: float) -> tuple[int, int]:
     """`(budget, resolved)`: the face budget of a run and the faces its images resolve. Photos fitted
-    with photo-consistency (`consistency > 0`, in one process) resolve about
+    with photo-consistency (`consistency > 0`) resolve about
     `area / (sqrt(3) / 4 * (DETAIL_EDGE * pixel)^2)` faces on the visual hull `hull` (its area in
     faces of `DETAIL_EDGE`-pixel edges). When that is 4 x `max_faces` or more (at the budget, edges
     of 8 px or longer: the photos' finest levels are left out, `detail_floor`), the budget rises
@@ -165,7 +157,7 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
     budget = options.face_budget
     if (kind != "photo" or not options.remesh or options.detail_faces <= budget or hull is None
             or "max_faces" in options.held
-            or options.consistency <= 0 or split_over_processes(n_views, options.devices)):
+            or options.consistency <= 0):
         return budget, 0
     v, f = hull.to_numpy()
     v = np.asarray(v, np.float64)
@@ -177,13 +169,13 @@ def detail_budget(options: ReconstructOptions, kind: str, n_views: int, hull, pi
 
 
 def _detailed(options: ReconstructOptions, tg: Targets, n_views: int, hulls: HullTable, pixel: float,
-              say) -> tuple[ReconstructOptions, int]:
+              say, held: np.ndarray | None = None) -> tuple[ReconstructOptions, int]:
     """`(options, resolved)`: `options` with the face budget of `detail_budget` (said when raised), or,
     for photos of a fine texture (`FINE_TEXTURE` at full size) that resolve fewer faces than
     `max_faces`, lowered towards that count, to no less than `TEXTURE_FACES` of it (said)."""
-    budget, resolved = detail_budget(options, tg.kind, n_views, hulls.get(options.hull_resolutions[0], 0)[0], pixel)
+    budget, resolved = detail_budget(options, tg.kind, hulls.get(options.hull_resolutions[0], 0)[0], pixel)
     if (0 < resolved < budget and options.fine_texture and "max_faces" not in options.held
-            and texture_share(tg.fit) >= FINE_TEXTURE):
+            and texture_share(tg.fit, held, n_views) >= FINE_TEXTURE):
         lower = max(options.initial_faces, int(round(TEXTURE_FACES * budget)) // 1000 * 1000, resolved // 1000 * 1000)
         if lower < budget:
             say(f"face budget: {lower} faces (photos of a fine texture that resolve about {resolved} at "
@@ -215,29 +207,32 @@ TEXTURE_SETTINGS = {"shading_ratio": 6.0, "alpha": 4.0, "photo": 1.0, "consisten
 TEXTURE_FACES = 2.0 / 3.0
 
 
-def texture_share(photos) -> float:
+def texture_share(photos, held: np.ndarray | None = None, n_views: int = 0) -> float:
     """The share of the pixels inside the masks of `photos (N, H, W, 4)` (premultiplied RGBA) that sit
-    on an albedo edge (`albedo_edges(..., band=0)`), over every view (views taken a few at a time)."""
-    marked = inside = 0
+    on an albedo edge (`albedo_edges(..., band=0)`), over every view (views taken a few at a time).
+    `held`: the views `photos` holds when this process holds only some of `n_views`: the counts of
+    every process's views are put together (`gathered_views`)."""
+    counts = np.zeros((len(photos), 2), np.int64)  # per view: pixels on an edge, pixels inside
     for i in range(0, len(photos), 4):
         chunk = np.asarray(photos[i:i + 4], np.float32)
         mask = chunk[..., 3] >= 0.5
-        marked += int(np.sum(np.asarray(albedo_edges(jnp.asarray(chunk), band=0)) & mask))
-        inside += int(np.sum(mask))
-    return marked / max(inside, 1)
+        counts[i:i + 4, 0] = np.sum(np.asarray(albedo_edges(jnp.asarray(chunk), band=0)) & mask, axis=(1, 2))
+        counts[i:i + 4, 1] = np.sum(mask, axis=(1, 2))
+    marked, inside = gathered_views(counts, held, n_views).sum(axis=0)
+    return int(marked) / max(int(inside), 1)
 
 
-def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, say: Callable[[str], None],
+def fine_texture(options: ReconstructOptions, kind: str, photos, say: Callable[[str], None],
                  resolved: int = 0, share: float | None = None) -> ReconstructOptions:
     """`options` for a fit whose finest level is `photos (N, H, W, 4)` (premultiplied), when their albedo
-    edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets in one process, as
-    a process of a split run holds only its own views, and `options.fine_texture`): each setting of
+    edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets and
+    `options.fine_texture`; `photos` of every view, also where a process holds only some): each setting of
     `TEXTURE_SETTINGS` not in `options.held` at that value, but the colour terms (`consistency_blur`,
     `polish_cycles`) only with photo-consistency on, and `n_cycles` only where the photos resolve
     fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not counted) and
     it is not more already. The share is measured on the images the fit sees: a texture the finest
     level blurs away is no fine texture. `share`: `texture_share(photos)` when measured already."""
-    if kind != "photo" or not options.fine_texture or split_over_processes(n_views, options.devices):
+    if kind != "photo" or not options.fine_texture:
         return options
     now = {k: getattr(options, k) for k in TEXTURE_SETTINGS}
     colour = options.consistency > 0
@@ -257,21 +252,22 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, n_views: int, s
 
 
 def _stereo_carve(tg: Targets, cams: Cameras, bounds, alpha, hull_cams: Cameras, options: ReconstructOptions, say,
-                  region=None):
+                  region=None, held=None):
     """`(carve, stereo)`: the carving of the visual hull by plane-sweep stereo of the photos
     (`ReconstructOptions.stereo_carve`) as a map of occupancy grids, and `Setup.stereo`; `(None, None)`
-    for other targets, with `stereo_carve` and the `stereo` weight 0, or the views split over processes.
+    for other targets, or with `stereo_carve` and the `stereo` weight 0. `held`: the views `tg` holds when
+    this process holds only some (every process then sweeps every view's photos at the stereo's size).
     The carving needs photos of a fine texture at the stereo size (`FINE_TEXTURE`): on smooth shading
     two views agree on wrong depths too, and a wrong carve takes true volume from the start."""
-    if (tg.kind != "photo" or (options.stereo_carve <= 0 and options.stereo <= 0)
-            or split_over_processes(len(cams), options.devices)):
+    if tg.kind != "photo" or (options.stereo_carve <= 0 and options.stereo <= 0):
         return None, None
     factor = 1
     while max(cams.height, cams.width) / factor > STEREO_SIZE:
         factor *= 2
     # averaged as normal maps are (premultiplied colour plus mid-grey for a block's uncovered share): the
     # stereo's measured input, kept to the bit (docs/results.md, "The stereo's input")
-    photos, scaled = np.asarray(pyramid_level(tg.fit, factor, normals=True)), scaled_cameras(cams, factor)
+    photos = gathered_views(np.asarray(pyramid_level(tg.fit, factor, normals=True)), held, len(cams))  # every view's
+    scaled = scaled_cameras(cams, factor)
     share, why = texture_share(photos) if options.stereo_carve > 0 else 1.0, ""
     if share < FINE_TEXTURE:
         why = (f"; no carving: albedo edges cover {share:.0%} of the masks, under {FINE_TEXTURE:.0%} (two views "
@@ -414,7 +410,7 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
     hull_cams = scaled_cameras(canonical, factor)
     lo, hi = visual_hull_bounds(alpha, hull_cams, region=region)
     pixel = pixel_footprint(canonical, 0.5 * (lo + hi))
-    carve, stereo = _stereo_carve(tg, canonical, (lo, hi), alpha, hull_cams, options, say, region)
+    carve, stereo = _stereo_carve(tg, canonical, (lo, hi), alpha, hull_cams, options, say, region, held)
     hulls = HullTable(alpha, hull_cams, (lo, hi), carve, region)
     notes = _cut_note(alpha, say)
     estimate = _estimated(hulls, options, say) if genus is None else None
@@ -425,7 +421,7 @@ def prepare(images, cams: Cameras, genus: int | None, targets: str | None, optio
         say(line)
 
     thickness, fine = _thin(canonical, hulls, pixel, options, decide)
-    options, resolved = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, decide)
+    options, resolved = _detailed(options.fine() if fine else options, tg, len(cams), hulls, pixel, decide, held)
     return Setup(images=images, targets=tg, world_cams=cams, cams=canonical, frame=frame, bounds=(lo, hi),
                  pixel=pixel, hulls=hulls, genus=int(genus if estimate is None else estimate.genus),
                  estimate=estimate, thickness=thickness, fine=fine, options=options,
