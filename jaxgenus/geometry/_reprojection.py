@@ -364,12 +364,12 @@ def _signed_edges(masks: np.ndarray) -> list[np.ndarray]:
 
 def _outline_moves(tm: trimesh.Trimesh, cams_arrays, size, edges, band: float, probe_px: float):
     """One round of `fit_outline` on `tm` as it is now: per vertex, the summed move its views ask of
-    it, how many asked, and the mean |signed distance| (px) of the outline vertices found."""
+    it, how many asked, and the sum and count of the outline vertices' |signed distance| (px)."""
     r, _, focal, centre_px, centres = cams_arrays
     h, w = size
     v = np.asarray(tm.vertices)
     normals, rays = np.asarray(tm.vertex_normals), ray_intersector(tm)
-    acc, count, offsets = np.zeros_like(v), np.zeros(len(v)), [np.zeros(0)]
+    acc, count, offsets = np.zeros_like(v), np.zeros(len(v)), np.zeros(2)
     for k in range(len(r)):
         x = (v - centres[k]) @ r[k].T
         z = np.maximum(x[:, 2], 1e-12)
@@ -389,13 +389,12 @@ def _outline_moves(tm: trimesh.Trimesh, cams_arrays, size, edges, band: float, p
         idx, s, out = idx[outer], s[outer], out[outer]
         acc[idx] += (-s * z[idx] / focal[k, 0])[:, None] * out
         count[idx] += 1
-        offsets.append(np.abs(s))
-    offsets = np.concatenate(offsets)
-    return acc, count, float(np.mean(offsets)) if len(offsets) else float("nan")
+        offsets += (np.abs(s).sum(), len(s))
+    return acc, count, offsets
 
 
 def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 24, band: float = 3.0, step: float = 0.7,
-                probe_px: float = 0.1) -> OutlineFit:
+                probe_px: float = 0.1, total=None) -> OutlineFit:
     """The outline of `mesh` moved onto `masks` at their own size (module doc).
 
     Args:
@@ -406,6 +405,10 @@ def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 24, band: float 
             edge move (farther ones are no outline the mask shows: a thin part, an occluding
             contour); step: the share of the mean move applied per round; probe_px: how far
             outward (pixels) a ray past a vertex must miss the mesh for the vertex to be on the outline.
+        total: where the views are split over processes (each passing the same mesh with its own
+            cameras and masks), a function summing an array over the processes
+            (`jaxgenus.optim.summed_over_processes`): every process then makes the same moves. None:
+            `cameras` are all the views.
 
     Returns:
         An `OutlineFit`; the input is not modified. The faces (and so the genus) are kept.
@@ -431,7 +434,9 @@ def fit_outline(mesh, cameras: Cameras, masks, *, rounds: int = 24, band: float 
     moving = trimesh.Trimesh(v, faces, process=False)  # one mesh, its vertices set each round (`ray_intersector`)
     for k in range(rounds + 1):
         moving.vertices = v
-        acc, count, offset = _outline_moves(moving, arrays, size, edges, band, probe_px)
+        moves = _outline_moves(moving, arrays, size, edges, band, probe_px)
+        acc, count, (total_px, n_px) = moves if total is None else (total(a) for a in moves)
+        offset = total_px / n_px if n_px else float("nan")
         before = offset if k == 0 else before
         if k == rounds:
             break

@@ -32,7 +32,7 @@ from jaxgenus.optim._optimize import (
 )
 from jaxgenus.optim._record import RECORD_KEYS, StepRecord
 from jaxgenus.optim._devices import (device_mesh, gathered_views, held_views, place, place_held, spread_views,
-                                     views_layout)
+                                     summed_over_processes, views_layout)
 from jaxgenus.optim._pyramid import pyramid_level, resolution_factors, scaled_cameras, step_views
 
 __all__ = [
@@ -80,6 +80,7 @@ __all__ = [
     "place",
     "place_held",
     "spread_views",
+    "summed_over_processes",
     "views_layout",
     "outside_distance",
     "pyramid_level",

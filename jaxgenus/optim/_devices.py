@@ -25,7 +25,7 @@ import numpy as np
 from jax.sharding import AxisType, NamedSharding, PartitionSpec as P
 
 __all__ = ["AXIS", "device_mesh", "gathered_views", "held_views", "place", "place_held", "spread_views",
-           "views_gradient", "views_layout"]
+           "summed_over_processes", "views_gradient", "views_layout"]
 
 AXIS = "views"
 
@@ -105,6 +105,17 @@ def gathered_views(local, held: np.ndarray | None, n_views: int) -> np.ndarray:
     if not seen.all():
         raise ValueError(f"views: no process holds views {np.flatnonzero(~seen)[:10].tolist()} of {n_views}")
     return out
+
+
+def summed_over_processes(local) -> np.ndarray:
+    """`local` (an array of the same shape in every process) summed over the processes joined by
+    `jax.distributed`, in process order (every process gets the same values); `local` itself with one."""
+    local = np.asarray(local)
+    if jax.process_count() == 1:
+        return local
+    from jax.experimental import multihost_utils
+
+    return np.asarray(multihost_utils.process_allgather(local)).reshape((-1,) + local.shape).sum(axis=0)
 
 
 def place_held(tree, mesh, order: np.ndarray, held: np.ndarray):

@@ -27,6 +27,7 @@ import jax
 import numpy as np
 
 from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, fit_photo_depth, phong_subdivision
+from jaxgenus.optim import summed_over_processes
 from jaxgenus.pipeline._fit import FitIndex, estimate_warnings, fit, refits, start_line
 from jaxgenus.pipeline._handles import HoleTests, hole_tests
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, Reconstruction
@@ -374,18 +375,21 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
     opts = setup.options
     finest = min((r["factor"] for r in rec.history.resolution), default=1)
     depth = opts.fit_photo_depth and setup.targets.kind == "photo"
+    split = setup.held is not None and len(setup.held) < len(setup.cams)  # this process holds only some views
     if finest <= 1 or not (opts.fit_outline or depth):
         return rec
-    if setup.held is not None and len(setup.held) < len(setup.cams):  # this process holds only some views
-        say("outline and depth: not refined at the images' own size with the views split over processes")
-        return rec
+    if depth and split:
+        say("photo depth: not refined at the images' own size with the views split over processes")
+        depth = False
     cams, fixed = setup.world_cams, None
     if depth and opts.depth_edge_px > 0:
         rec = _finer_for_photos(rec, cams, opts.depth_edge_px, say)
     v, f = rec.mesh.to_numpy()
     if opts.fit_outline:
         # the fit placed its outline to about a pixel of the size it fitted: look that far (and a bit) past the edges
-        out = fit_outline((v, f), cams, setup.targets.alpha, band=max(3.0, 1.25 * finest))
+        here = cams if setup.held is None else cams[setup.held]  # split: each process its views, the moves summed
+        out = fit_outline((v, f), here, setup.targets.alpha, band=max(3.0, 1.25 * finest),
+                          total=summed_over_processes if split else None)
         say(f"outline: {int(out.moved.sum())} vertices moved onto the masks at {cams.width}x{cams.height} (fitted "
             f"at 1/{finest}), {out.before:.2f} -> {out.after:.2f} px off their edges on average "
             "(ReconstructOptions.fit_outline=False: off)")
