@@ -51,29 +51,16 @@ def test_views_split_in_two_move_the_outline_as_all_views_do():
     """The views split over two holders (as processes joined by `jax.distributed` hold them; here two
     threads), each fitting with its own cameras and masks and summing its moves with the other's
     through `total`: both get the outline of one fit on all views (to the summation order)."""
-    import threading
+    from _processes import as_two_processes
 
     cams = _ring(6, 25.0)
     masks = raycast(cams, trimesh.creation.icosphere(subdivisions=5, radius=1.05))[..., 3]
     sphere = trimesh.creation.icosphere(subdivisions=3)
     v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
     whole = fit_outline((v, f), cams, masks, rounds=6)
-    halves, box, meet, out = (np.array([0, 2, 4]), np.array([1, 3, 5])), [None, None], threading.Barrier(2), [None, None]
-
-    def holder(i):
-        def total(a):
-            box[i] = np.asarray(a)
-            meet.wait()
-            summed = box[0] + box[1]
-            meet.wait()
-            return summed
-        out[i] = fit_outline((v, f), cams[halves[i]], masks[halves[i]], rounds=6, total=total)
-
-    threads = [threading.Thread(target=holder, args=(i,)) for i in range(2)]
-    for t in threads:
-        t.start()
-    for t in threads:
-        t.join()
+    halves = (np.array([0, 2, 4]), np.array([1, 3, 5]))
+    out = as_two_processes(lambda i, total: fit_outline((v, f), cams[halves[i]], masks[halves[i]], rounds=6,
+                                                         total=total))
     for part in out:
         np.testing.assert_allclose(part.vertices, whole.vertices, rtol=0, atol=1e-12)
         assert np.array_equal(part.moved, whole.moved) and abs(part.after - whole.after) < 1e-9

@@ -79,6 +79,27 @@ def test_8_bit_photos_sweep_as_their_float_copies(scene):
     np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
 
 
+def test_views_split_in_two_sweep_as_all_views_do(scene):
+    """The views split over two holders (as processes joined by `jax.distributed` hold them; here two
+    threads, `tests/_processes.py`), every other view each, so most vertices' reference and neighbour
+    views sit with different holders: each passes every camera, its own photos and `held`, and the
+    sums through `total` give both the surface of one sweep over all views."""
+    from _processes import as_two_processes
+
+    cams, _, photos, pixel = scene
+    big = trimesh.creation.icosphere(subdivisions=3, radius=1.0 + 2.0 * pixel)
+    whole = fit_photo_depth(big, cams, photos, rounds=1)
+    halves = (np.arange(0, len(cams), 2), np.arange(1, len(cams), 2))
+    parts = as_two_processes(lambda i, total: fit_photo_depth(big, cams, photos[halves[i]], rounds=1, held=halves[i],
+                                                              total=total))
+    assert whole.measured.sum() > 50
+    for part in parts:
+        assert np.array_equal(part.measured, whole.measured)
+        np.testing.assert_allclose(part.vertices, whole.vertices, rtol=0, atol=1e-3 * pixel)
+    with pytest.raises(ValueError, match="held"):
+        fit_photo_depth(big, cams, photos[halves[0]], held=halves[0])  # split views need the sum over them
+
+
 def test_the_right_surface_stays_and_fixed_vertices_do_not_move(scene):
     cams, _, photos, pixel = scene
     sphere = trimesh.creation.icosphere(subdivisions=4)  # its vertices lie on the ray-cast surface

@@ -94,29 +94,43 @@ def _device_colours(src: np.ndarray):
     return levels
 
 
-def _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref):
-    """Each vertex's square of reference pixels: its camera-frame position `(C, 3)`, the pixels
-    `(C, P)` x2, their colours `(C, P, 3)` (each channel zero-mean) and the colour deviation `(C,)`."""
+def _reference_pixels(rot, focal, centre_px, centres, offsets, v, ref):
+    """Each vertex's position in its reference camera's frame `(C, 3)` and its square of pixels `(C, P)` x2."""
     x = jnp.einsum("cij,cj->ci", rot[ref], v - centres[ref])
     pu = (focal[ref, 0] * x[:, 0] / x[:, 2] + centre_px[ref, 0])[:, None] + offsets[None, :, 0]
     pv = (focal[ref, 1] * x[:, 1] / x[:, 2] + centre_px[ref, 1])[:, None] + offsets[None, :, 1]
-    a = _sample(colour, ref[:, None], pu, pv)
+    return x, pu, pv
+
+
+def _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref, slot=None):
+    """Each vertex's square of reference pixels: its camera-frame position `(C, 3)`, the pixels
+    `(C, P)` x2, their colours `(C, P, 3)` (each channel zero-mean) and the colour deviation `(C,)`.
+    `slot`: where each reference view's photo sits in `colour` (default: at `ref`)."""
+    x, pu, pv = _reference_pixels(rot, focal, centre_px, centres, offsets, v, ref)
+    a = _sample(colour, (ref if slot is None else slot)[:, None], pu, pv)
     a = a - a.mean(1, keepdims=True)
     return x, pu, pv, a, jnp.sqrt((a * a).mean((1, 2)) + 1e-12)
 
 
 @jax.jit
-def _square_spreads(colour, rot, focal, centre_px, centres, offsets, v, ref):
+def _square_spreads(colour, rot, focal, centre_px, centres, offsets, v, ref, slot):
     """The colour deviation `(C,)` of each vertex's reference square (`_reference_squares`)."""
-    return _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref)[-1]
+    return _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref, slot)[-1]
 
 
 @jax.jit
-def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok):
-    """NCC `(C, K, D)` of each vertex's reference square against its `K` neighbours on `D` planes
-    along its normal (NaN: no such neighbour or out of its frame)."""
+def _square_colours(colour, rot, focal, centre_px, centres, offsets, v, ref, slot):
+    """Each vertex's reference square (`_reference_squares`): its zero-mean colours and their deviation
+    as a row `(C, 3 P + 1)`."""
+    a, sa = _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref, slot)[3:]
+    return jnp.concatenate([a.reshape(a.shape[0], -1), sa[:, None]], axis=1)
+
+
+def _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots):
+    """NCC `(C, K, D)` of each vertex's reference square (camera-frame position `x`, pixels `pu, pv`,
+    zero-mean colours `a`, deviation `sa`) against its `K` neighbours on `D` planes along its normal
+    (NaN: no such neighbour or out of its frame); `slots[:, j]`: where neighbour j's photo sits in `colour`."""
     _, h, w, _ = colour.shape
-    x, pu, pv, a, sa = _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref)
     rays = jnp.stack([(pu - centre_px[ref, 0, None]) / focal[ref, 0, None],
                       (pv - centre_px[ref, 1, None]) / focal[ref, 1, None], jnp.ones_like(pu)], -1)
     rays = jnp.einsum("cji,cpj->cpi", rot[ref], rays)  # (C, P, 3) world directions
@@ -131,12 +145,28 @@ def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, 
         z = jnp.maximum(y[..., 2], 1e-9)
         u = focal[cam, 0, None, None] * y[..., 0] / z + centre_px[cam, 0, None, None]
         q = focal[cam, 1, None, None] * y[..., 1] / z + centre_px[cam, 1, None, None]
-        b = _sample(colour, cam[:, None, None], u, q)  # (C, D, P, 3)
+        b = _sample(colour, slots[:, j, None, None], u, q)  # (C, D, P, 3)
         b = b - b.mean(2, keepdims=True)
         ncc = (a[:, None] * b).mean((2, 3)) / (sa[:, None] * jnp.sqrt((b * b).mean((2, 3)) + 1e-12))
         inside = ((u > 1) & (u < w - 1) & (q > 1) & (q < h - 1) & (y[..., 2] > 0)).all(2)
         out.append(jnp.where(inside & nbr_ok[:, j, None], ncc, jnp.nan))
     return jnp.stack(out, 1)
+
+
+@jax.jit
+def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok):
+    """NCC `(C, K, D)` of each vertex's reference square against its `K` neighbours on `D` planes
+    along its normal (`_partner_ncc`), every view's photo in `colour`."""
+    x, pu, pv, a, sa = _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref)
+    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, nbr_ok, x, pu, pv, a, sa, nbr)
+
+
+@jax.jit
+def _held_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok, a, sa, slots):
+    """`_sweep_scores` where `colour` holds only some views (`slots`: where each neighbour's photo sits,
+    0 where it is not held: `nbr_ok` is False there) and the reference squares' colours come in."""
+    x, pu, pv = _reference_pixels(rot, focal, centre_px, centres, offsets, v, ref)
+    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots)
 
 
 def _squares_on_mask(photos, reach: float):
@@ -186,18 +216,42 @@ def _chunked(kernel, v, *per_vertex):
     return np.concatenate(out)
 
 
-def _spreads(colour, arrays, offsets, v, ref):
-    """The colour deviation of each vertex's reference square `(V,)`."""
+def _spreads(colour, arrays, offsets, v, ref, slot):
+    """The colour deviation of each vertex's reference square `(V,)` (its photo at `slot` in `colour`)."""
     r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
-    return _chunked(lambda *a: _square_spreads(colour, r, focal, centre_px, centres, offsets, *a), v, ref)
+    return _chunked(lambda *a: _square_spreads(colour, r, focal, centre_px, centres, offsets, *a), v, ref, slot)
 
 
-def _scores(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok):
+def _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, slot, total):
+    """`(V, K, D)` NCC of each vertex's reference square against its neighbours where the views are
+    split over processes (`slot`: where each view's photo sits in this process's `colour`, -1 where
+    another holds it): the holder of a vertex's reference view samples its square, the squares are
+    summed over the processes (`total`), and the holder of each neighbour scores it against that one."""
+    r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
+    mine = slot[ref] >= 0
+    squares = np.zeros((len(v), offsets.shape[0] * 3 + 1), np.float32)
+    if mine.any():
+        squares[mine] = _chunked(lambda *a: _square_colours(colour, r, focal, centre_px, centres, offsets, *a),
+                                 v[mine], ref[mine], slot[ref[mine]])
+    squares = total(squares)
+    a, sa = squares[:, :-1].reshape(len(v), -1, 3), squares[:, -1]
+    here = nbr_ok & (slot[nbr] >= 0)
+    ncc = _chunked(lambda *x: _held_scores(colour, r, focal, centre_px, centres, offsets, steps, *x), v,
+                   normals.astype(np.float32), ref, nbr, here, a, sa, np.maximum(slot[nbr], 0))
+    finite = np.isfinite(ncc)  # each (vertex, neighbour) scored by the one process that holds the neighbour
+    counted = total(finite.astype(np.int32))
+    return np.where(counted > 0, total(np.where(finite, ncc, 0.0).astype(np.float32)), np.nan)
+
+
+def _scores(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, held=None):
     """The mean NCC over each vertex's neighbours per plane `(V, D)` and how many neighbours counted
-    (`_sweep_scores`)."""
-    r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
-    ncc = _chunked(lambda *a: _sweep_scores(colour, r, focal, centre_px, centres, offsets, steps, *a),
-                   v, normals.astype(np.float32), ref, nbr, nbr_ok)
+    (`_sweep_scores`; `held`: `(slot, total)` of `_held_ncc` where the views are split over processes)."""
+    if held is None:
+        r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
+        ncc = _chunked(lambda *a: _sweep_scores(colour, r, focal, centre_px, centres, offsets, steps, *a),
+                       v, normals.astype(np.float32), ref, nbr, nbr_ok)
+    else:
+        ncc = _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, *held)
     ok = np.isfinite(ncc[:, :, len(steps) // 2])
     return np.where(ok[:, :, None] & np.isfinite(ncc), ncc, 0.0).sum(1) / np.maximum(ok.sum(1), 1)[:, None], ok.sum(1)
 
@@ -222,7 +276,7 @@ def _targets(score, count, spread, min_ncc: float, min_contrast: float):
 def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int = 2, neighbours: int = 8,
                     max_angle: float = 35.0, patch: int = 4, spacing: float = 1.5, search_px: float = 12.0,
                     step_px: float = 0.75, smoothing: float = 0.1, min_ncc: float = 0.3,
-                    min_contrast: float = 0.0115) -> PhotoDepthFit:
+                    min_contrast: float = 0.0115, held=None, total=None) -> PhotoDepthFit:
     """`mesh`'s vertices moved along their normals to where `photos` agree (module doc).
 
     Args:
@@ -239,12 +293,28 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
         smoothing: the weight of the edge term of the solve; min_ncc, min_contrast: the least best
             score and the reference square's colour deviation (RMS over its samples and the three
             channels, in [0, 1] levels) a vertex needs to count.
+        held, total: where the views are split over processes (each passing the same mesh, every
+            camera, and the photos of its own views, `held`: their indices into `cameras`), a
+            function summing an array over the processes (`jaxgenus.optim.summed_over_processes`):
+            each process sees with its own views, samples the squares of the vertices whose
+            reference view it holds and scores them against the neighbours it holds; the sums make
+            every process move the vertices alike. None: `photos` are every view's.
 
     Returns:
         A `PhotoDepthFit`; the input is not modified. The faces (and so the genus) are kept.
     """
     tm = as_trimesh(mesh)
-    src = photo_array(photos, "photos", len(cameras))
+    n_all = len(cameras)
+    held = np.arange(n_all) if held is None else np.asarray(held, np.int64)
+    split = total is not None
+    if held.ndim != 1 or not len(held) or held.min() < 0 or held.max() >= n_all or np.any(np.diff(held) <= 0):
+        raise ValueError(f"held: expected increasing indices into the {n_all} cameras, got {held.tolist()[:10]}")
+    if not split and len(held) != n_all:
+        raise ValueError("held: views split over processes need `total`, the sum over them")
+    slot = np.full(n_all, -1, np.int64)
+    slot[held] = np.arange(len(held))
+    total = total if split else (lambda x: x)
+    src = photo_array(photos, "photos", len(held))
     on_mask = _squares_on_mask(photos, patch * spacing * np.sqrt(2.0) + 1.0)
     if src.shape[1:3] != (cameras.height, cameras.width):
         raise ValueError(f"photos: size {src.shape[1:3]} differs from the cameras' {(cameras.height, cameras.width)}")
@@ -262,6 +332,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     v0 = np.asarray(tm.vertices, np.float64) - shift
     r, t, focal, centre_px, centres = camera_arrays(cameras)
     arrays = (r, t, focal, centre_px, centres - shift)
+    mine = tuple(a[held] for a in arrays)  # the cameras of the views held here
     colour = _device_colours(src)
     g = np.arange(-patch, patch + 1, dtype=np.float32) * spacing
     offsets = jnp.asarray(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2))
@@ -278,20 +349,25 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
         cur.vertices = v
         normals = np.asarray(cur.vertex_normals)
         tol = 1e-3 * float(np.linalg.norm(np.ptp(v, axis=0)))
-        cosines, _ = facing_cosines(cur, ray_intersector(cur), tol, arrays, (cameras.height, cameras.width),
-                                    margin=patch * spacing + 2)
+        cosines = np.zeros((len(v), n_all), np.float32)  # each view's column from the process holding it
+        cosines[:, held] = facing_cosines(cur, ray_intersector(cur), tol, mine, (cameras.height, cameras.width),
+                                          margin=patch * spacing + 2)[0]
         if on_mask is not None:
-            cosines = np.where(_on(on_mask, v, arrays), cosines, -1.0)
+            cosines[:, held] = np.where(_on(on_mask, v, mine), cosines[:, held], -1.0)
+        cosines = total(cosines)
         ref, nbr, nbr_ok = _partners(v, cosines, arrays[4], neighbours, max_angle)
         score, count, spread = np.zeros((len(v), len(steps))), np.zeros(len(v), np.int64), np.zeros(len(v))
         # only the vertices free to move that some pair of views can measure, and of those the textured ones
         act = np.flatnonzero(nbr_ok.any(axis=1) & ~keep)
         if len(act):
-            spread[act] = _spreads(colour, arrays, offsets, v[act], ref[act])
+            here = act[slot[ref[act]] >= 0]  # the vertices whose reference view this process holds
+            if len(here):
+                spread[here] = _spreads(colour, arrays, offsets, v[here], ref[here], slot[ref[here]])
+            spread = total(spread)
             act = act[spread[act] > min_contrast]
         if len(act):
             score[act], count[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], ref[act], nbr[act],
-                                             nbr_ok[act])
+                                             nbr_ok[act], (slot, total) if split else None)
         offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast)
         pixel = np.einsum("vi,vi->v", v - arrays[4][ref], r[ref, 2]) / focal[ref, 0]
         free = np.flatnonzero(~keep)  # the kept vertices' offsets are 0 exactly

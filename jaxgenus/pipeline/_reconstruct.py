@@ -371,16 +371,14 @@ def _finer_for_photos(rec: Reconstruction, cams: Cameras, edge_px: float, say: C
 def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
     """`rec` with its outline on the masks at their own size (`ReconstructOptions.fit_outline`) and,
     for photos, its surface where the photos at their own size agree (`fit_photo_depth`), where the
-    finest level fitted was coarser than the images."""
+    finest level fitted was coarser than the images. With the views split over processes each
+    process works with its own views and the moves are summed over them (the same mesh in each)."""
     opts = setup.options
     finest = min((r["factor"] for r in rec.history.resolution), default=1)
     depth = opts.fit_photo_depth and setup.targets.kind == "photo"
     split = setup.held is not None and len(setup.held) < len(setup.cams)  # this process holds only some views
     if finest <= 1 or not (opts.fit_outline or depth):
         return rec
-    if depth and split:
-        say("photo depth: not refined at the images' own size with the views split over processes")
-        depth = False
     cams, fixed = setup.world_cams, None
     if depth and opts.depth_edge_px > 0:
         rec = _finer_for_photos(rec, cams, opts.depth_edge_px, say)
@@ -396,7 +394,8 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
         v, fixed = out.vertices.astype(v.dtype), out.moved
     if depth:
         t0 = time.perf_counter()
-        fitted = fit_photo_depth((v, f), cams, setup.targets.fit, fixed=fixed)
+        fitted = fit_photo_depth((v, f), cams, setup.targets.fit, fixed=fixed, held=setup.held if split else None,
+                                 total=summed_over_processes if split else None)
         n = int(fitted.measured.sum())
         if n == 0:
             say("photo depth: WARNING no vertex had texture and neighbouring views to measure its depth at "
