@@ -235,11 +235,19 @@ def _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, slot
                                  v[mine], ref[mine], slot[ref[mine]])
     squares = total(squares)
     a, sa = squares[:, :-1].reshape(len(v), -1, 3), squares[:, -1]
-    here = nbr_ok & (slot[nbr] >= 0)
-    ncc = _chunked(lambda *x: _held_scores(colour, r, focal, centre_px, centres, offsets, steps, *x), v,
-                   normals.astype(np.float32), ref, nbr, here, a, sa, np.maximum(slot[nbr], 0))
+    pv, pk = np.nonzero(nbr_ok & (slot[nbr] >= 0))  # the (vertex, neighbour) pairs whose neighbour is held here
+    ncc = np.full(nbr.shape + (len(steps),), np.nan, np.float32)
+    size = _CHUNK * nbr.shape[1]  # pairs a call: the temporaries of a chunk of vertices
+    for s in range(0, len(pv), size):
+        i = np.minimum(np.arange(s, s + size), len(pv) - 1)
+        cam = nbr[pv[i], pk[i]][:, None]
+        out = _held_scores(colour, r, focal, centre_px, centres, offsets, steps, *(jnp.asarray(x) for x in (
+            v[pv[i]].astype(np.float32), normals[pv[i]].astype(np.float32), ref[pv[i]], cam, np.ones_like(cam, bool),
+            a[pv[i]], sa[pv[i]], slot[cam])))
+        n = min(size, len(pv) - s)
+        ncc[pv[s:s + n], pk[s:s + n]] = np.asarray(out)[:n, 0]
     finite = np.isfinite(ncc)  # each (vertex, neighbour) scored by the one process that holds the neighbour
-    counted = total(finite.astype(np.int32))
+    counted = total(finite.astype(np.uint8))
     return np.where(counted > 0, total(np.where(finite, ncc, 0.0).astype(np.float32)), np.nan)
 
 
