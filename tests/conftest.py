@@ -36,7 +36,7 @@ def _cache_folder(config) -> Path:
 
 #: XLA CPU compiles the suite's programs with its loop emitters instead of its fusion emitters: the
 #: same programs, about a third less compile time on the compile-bound modules (docs/results.md,
-#: 2026-12-07). The two-process test runs XLA's defaults, so one end-to-end run keeps them covered.
+#: 2026-12-07). Every test and subprocess of the suite runs them; XLA's defaults are what users run.
 TEST_XLA_FLAGS = "--xla_cpu_use_fusion_emitters=false"
 
 
