@@ -74,6 +74,19 @@ def _own_cores(workerinput: dict) -> None:
         os.sched_setaffinity(0, cores[int(worker[2:]) :: n])
 
 
+#: Modules whose tests are long end-to-end runs (a minute each, subprocesses of several processes
+#: or devices): collected first, so the two workers' last tests are short ones. With `worksteal`
+#: a worker that runs out takes tests from the end of the other's queue, but not the one it is
+#: running: a minute-long test started last leaves the other worker idle that long.
+FIRST_MODULES = ("test_sharded.py", "test_handles.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    """The tests of `FIRST_MODULES` first (each module's tests together and in order), then the rest."""
+    first = [i for i in items if i.path.name in FIRST_MODULES]
+    items[:] = sorted(first, key=lambda i: FIRST_MODULES.index(i.path.name)) + [i for i in items if i not in first]
+
+
 def pytest_configure(config):
     """XLA flags for the suite (`TEST_XLA_FLAGS`), and one on-disk compilation cache, shared by the xdist workers and the subprocesses that tests
     start (they inherit the environment): a program that two workers, two modules or a test and a
