@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +12,7 @@ import pytest
 import trimesh
 
 import jaxgenus as jg
-from _meshes import icosphere
+from _meshes import icosphere, torus
 from dense_reference import dense_render
 
 ALL = ("alpha", "normal", "depth", "shaded")
@@ -426,3 +427,34 @@ def test_face_and_vertex_normals_match_trimesh():
     deg = jg.Mesh.from_numpy(np.zeros((3, 3)), np.array([[0, 1, 2]]))
     g = jax.grad(lambda v: jnp.sum(jg.geometry.face_normals(_with_vertices(deg, v))))(deg.vertices)
     assert bool(jnp.all(jnp.isfinite(g)))
+
+
+def test_values_rendered_beside_flat_colours_equal_their_own_render():
+    """`"values"` (per-vertex, interpolated) in the pass of flat `"color"` and depth: the same images
+    as two renders, each on its own, and the same gradients (float64: no summation-order noise)."""
+    with jax.enable_x64(True):
+        mesh = torus(1.0, 0.35, 24, 12, dtype=jnp.float64)
+        cams = jg.sphere_cameras(3, radius=3.0, fov_deg=40.0, resolution=40)
+        rng = np.random.default_rng(3)
+        fc = jnp.asarray(rng.uniform(0, 1, (mesh.face_capacity, 3)))
+        vv = jnp.asarray(rng.uniform(0, 1, (mesh.vertex_capacity, 3)))
+        w = jnp.asarray(rng.normal(size=(3, 40, 40, 8)))
+
+        def apart(v, fc, vv):
+            m = eqx.tree_at(lambda q: q.vertices, mesh, v)
+            a = jg.render(m, cams, channels=("alpha", "color", "depth"), face_colors=fc)
+            b = jg.render(m, cams, channels=("alpha", "color"), vertex_colors=vv)
+            return jnp.concatenate([a, b[..., 1:]], axis=-1)
+
+        def together(v, fc, vv):
+            m = eqx.tree_at(lambda q: q.vertices, mesh, v)
+            return jg.render(m, cams, channels=("alpha", "color", "depth", "values"), face_colors=fc, vertex_values=vv)
+
+        args = (mesh.vertices, fc, vv)
+        np.testing.assert_array_equal(np.asarray(together(*args)), np.asarray(apart(*args)))
+        ga = jax.grad(lambda *a: jnp.sum(apart(*a) * w), argnums=(0, 1, 2))(*args)
+        gt = jax.grad(lambda *a: jnp.sum(together(*a) * w), argnums=(0, 1, 2))(*args)
+        for x, y in zip(gt, ga):
+            np.testing.assert_allclose(np.asarray(x), np.asarray(y), rtol=1e-9, atol=1e-9 * float(jnp.abs(y).max()))
+    with pytest.raises(ValueError, match="vertex_values"):
+        jg.render(mesh, cams, channels=("alpha", "values"))

@@ -196,21 +196,18 @@ def image_loss(
     return sum(terms.values(), jnp.zeros((), rendered.dtype))
 
 
-def _shading_ratio(mesh, renderer, kw, cameras, target, lighting):
-    """`shading_ratio_cost` of the render of the irradiance at the vertex normals (interpolated), over the
-    pairs near an albedo edge (`RATIO_BAND`)."""
-    kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
-    e = jnp.maximum(irradiance(vertex_normals(mesh), lighting), 0.0)
-    img = renderer(mesh, cameras, channels=("alpha", "color"), vertex_colors=e, **kw)
+def _shading_ratio(alpha, shading, target):
+    """`shading_ratio_cost` of the rendered irradiance at the vertex normals (interpolated; the main
+    render's `"values"`), over the pairs near an albedo edge (`RATIO_BAND`)."""
     near = albedo_edges(target, band=RATIO_BAND)  # where the albedo cannot follow the photo
-    return shading_ratio_cost(img[..., 0], img[..., 1:4], target, where=near)[0]
+    return shading_ratio_cost(alpha, shading, target, where=near)[0]
 
 
 def _consistency(mesh, renderer, kw, alpha, depth, cameras, target, neighbours, blur, colour):
     """The photo-consistency loss of the views against their neighbours (the neighbours' depth constant)."""
     nb_cams, nb_photos = neighbours[:2]
     fixed = jax.tree.map(jax.lax.stop_gradient, mesh)
-    kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors")}
+    kw = {k: v for k, v in kw.items() if k not in ("face_colors", "vertex_colors", "vertex_values")}
     nb_depth = jax.lax.stop_gradient(renderer(fixed, nb_cams, channels=("depth", "alpha"), **kw))
     loss, _ = photo_consistency(depth, alpha, cameras, target, nb_cams, nb_photos, nb_depth, blur=blur,
                                 colour=bool(colour))
@@ -239,7 +236,9 @@ def objective(
     `bilaplacian` and `inversion` values that were computed (weight 0: absent).
     `appearance=(albedo (Vcap, 3), lighting (3, 24) or (3, 3))`: `target` is a photo, fitted
     through Lambertian colours, flat or smooth as `render_settings.shading` says (`photo` and
-    `albedo_smoothness` terms).
+    `albedo_smoothness` terms); with `weights.shading_ratio` the same render also asks for the
+    `"values"` channel, the irradiance at the vertex normals (`vertex_values`), so a custom
+    `renderer` for photos takes that keyword as `jaxgenus.render` does.
     `outside`: the targets' `outside_distance` maps (`(N, H, W)`, pixels), for the
     `containment` term (`jaxgenus.optim._containment`); None skips it.
     `neighbours=(cameras, photos)`: photo targets: one neighbour view per view of `cameras` and
@@ -258,16 +257,20 @@ def objective(
         kw.update(shading_colors(mesh, albedo, lighting, shading))
         if weights.albedo_smoothness:
             terms["albedo_smoothness"] = weights.albedo_smoothness * albedo_smoothness(albedo, mesh)
-        if weights.shading_ratio:
-            terms["shading_ratio"] = weights.shading_ratio * _shading_ratio(mesh, renderer, kw, cameras, target, lighting)
+    ratio = photo and bool(weights.shading_ratio)
     colour = weights.photo if photo else weights.normal
     carve = bool(weights.carve) and not photo and target.shape[-1] == 4
     consistent = bool(weights.consistency) and photo and neighbours is not None
     stereo = bool(weights.stereo) and photo and neighbours is not None and len(neighbours) > 2
     deep = carve or consistent or stereo
-    if weights.alpha or (colour and target.shape[-1] == 4) or deep:
-        channels = render_channels(target, photo) + (("depth",) if deep else ())
+    if weights.alpha or (colour and target.shape[-1] == 4) or deep or ratio:
+        channels = render_channels(target, photo) + (("depth",) if deep else ()) + (("values",) if ratio else ())
+        if ratio:  # the irradiance at the vertex normals, interpolated, rasterized in the same pass
+            kw["vertex_values"] = jnp.maximum(irradiance(vertex_normals(mesh), appearance[1]), 0.0)
         rendered = renderer(mesh, cameras, channels=channels, **kw)
+        if ratio:
+            rendered, shading = rendered[..., :-3], rendered[..., -3:]
+            terms["shading_ratio"] = weights.shading_ratio * _shading_ratio(rendered[..., 0], shading, target)
         if deep:
             rendered, depth = rendered[..., :4], rendered[..., 4]
         if carve:

@@ -121,12 +121,12 @@ def check_inputs(mesh, cameras):
 
 
 def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face_colors=None,
-               vertex_colors=None) -> Faces:
+               vertex_colors=None, vertex_values=None) -> Faces:
     """Per view and face: projection, culling, depth plane and blend attributes.
 
-    With `vertex_colors (V, 3)` (for `"color"`, instead of `face_colors`) every attribute is
-    a clamped plane in the pixel (`attribute_planes`; 5 values a channel): the colour is
-    interpolated over each face, the other channels are constant planes."""
+    With `vertex_colors (V, 3)` (for `"color"`, instead of `face_colors`) or `vertex_values (V, 3)`
+    (for `"values"`) every attribute is a clamped plane in the pixel (`attribute_planes`; 5 values a
+    channel): those are interpolated over each face, the other channels are constant planes."""
     dtype = mesh.vertices.dtype
     rot = cameras.rotation.astype(dtype)
     trans = cameras.translation.astype(dtype)
@@ -171,7 +171,9 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
             if name == "normal":
                 parts.append(jnp.broadcast_to(nrm[None], (n_views, n_faces, 3)))
             elif name == "color" and vertex_colors is not None:
-                parts.append(None)  # filled with planes below
+                parts.append(vertex_colors)  # planes below
+            elif name == "values":
+                parts.append(vertex_values)  # planes below
             elif name == "color":
                 parts.append(jnp.broadcast_to(face_colors.astype(dtype)[None], (n_views, n_faces, 3)))
             else:  # shaded
@@ -182,10 +184,9 @@ def face_setup(mesh, cameras, *, sigma, znear, cull, attrs, light, ambient, face
                     ldir = ldir / jnp.linalg.norm(ldir, axis=-1, keepdims=True)
                 lam = jnp.maximum(jnp.einsum("fi,ni->nf", nrm, ldir, precision=_HI), 0.0)
                 parts.append((ambient + (1.0 - ambient) * lam)[..., None])
-    if vertex_colors is not None:
-        corners = vertex_colors.astype(dtype)[mesh.faces]  # (F, 3, 3)
-        colour = attribute_planes(uv, corners)
-        parts = [colour if p is None else _constant_planes(p) for p in parts]
+    if vertex_colors is not None or vertex_values is not None:
+        parts = [attribute_planes(uv, p.astype(dtype)[mesh.faces]) if p.ndim == 2 else _constant_planes(p)
+                 for p in parts]
     attr = jnp.concatenate(parts, axis=-1) if parts else jnp.zeros((n_views, n_faces, 0), dtype)
     dconst = pj.dconst
     logw = jnp.where(valid, logw, 0.0)

@@ -28,10 +28,11 @@ from jaxgenus.rendering._splat_native import splat_all
 __all__ = ["render", "RenderInfo", "RenderSettings", "CHANNEL_SIZES", "SHADINGS"]
 
 #: Number of image channels each requested channel contributes, in request order.
-CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1, "color": 3}
+CHANNEL_SIZES = {"alpha": 1, "normal": 3, "depth": 1, "shaded": 1, "color": 3, "values": 3}
 #: The shadings of a photo render: colours constant per face, or per vertex and interpolated (`render_photo`).
 SHADINGS = ("flat", "smooth")
-_BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0)}
+_BLEND_DEFAULT = {"normal": (0.0, 0.0, 0.0), "depth": (0.0,), "shaded": (0.0,), "color": (0.0, 0.0, 0.0),
+                  "values": (0.0, 0.0, 0.0)}
 
 
 @dataclasses.dataclass(frozen=True, repr=False)
@@ -124,6 +125,7 @@ def render(
     ambient: float = 0.3,
     face_colors=None,
     vertex_colors=None,
+    vertex_values=None,
     plan: RasterPlan | None = None,
     return_info: bool = False,
 ):
@@ -144,6 +146,9 @@ def render(
     * `"color"` (3): the per-face RGB `face_colors`, or the per-vertex RGB `vertex_colors`
       interpolated over each face (affine in the pixel, clamped to the corners' range),
       blended the same way (a photo's shading, see `jaxgenus.render_photo`).
+    * `"values"` (3): the per-vertex `vertex_values` interpolated over each face as
+      `vertex_colors` are, beside `"color"` in the same pass (one rasterization for both;
+      such as the irradiance of a photo's shading next to its colour).
 
     Args:
         sigma: edge blur in pixels (the sigmoid's scale; 10-90 % over 4.4 sigma).
@@ -158,6 +163,7 @@ def render(
         face_colors: `(face capacity, 3)` RGB per face for `"color"` (differentiable).
         vertex_colors: `(vertex capacity, 3)` RGB per vertex for `"color"`, instead of
             `face_colors` (differentiable in the colours and the vertices).
+        vertex_values: `(vertex capacity, 3)` per-vertex values for `"values"`.
         plan: None (default): on CPU the native kernel (`_splat_native`, C++ behind
             the XLA FFI) renders every face exactly, with no windows or budgets, under
             `jit` or not; on other platforms the JAX splat runs with a plan from the
@@ -217,6 +223,13 @@ def render(
             raise ValueError(f"vertex_colors must have shape (vertex capacity {mesh.vertex_capacity}, 3), "
                              f"got {vertex_colors.shape}")
         face_colors = vertex_colors  # one traced argument; `smooth` tells them apart
+    if ("values" in channels) != (vertex_values is not None):
+        raise ValueError("vertex_values must be given exactly when channels has 'values'")
+    if vertex_values is not None:
+        vertex_values = jnp.asarray(vertex_values)
+        if vertex_values.shape != (mesh.vertex_capacity, 3):
+            raise ValueError(f"vertex_values must have shape (vertex capacity {mesh.vertex_capacity}, 3), "
+                             f"got {vertex_values.shape}")
     native = plan is None
     if plan is None:
         # the plan of the JAX splat, used only where the native kernel is not (GPU):
@@ -232,11 +245,12 @@ def render(
     static = dict(channels=channels, sigma=sigma, gamma=gamma, znear=znear, cull=bool(cull_backfaces), light=light,
                   ambient=ambient, bg=tuple(sorted(bg.items())), return_info=bool(return_info), native=native,
                   smooth=vertex_colors is not None)
+    colors = (face_colors, vertex_values)
     where = view_sharding(cameras.rotation)
     if where is not None:  # views split over devices: each renders its own (module `_sharded`)
         return per_device(lambda m, fc, c: _render_jit(m, c, plan, fc, **static), where, len(cameras),
-                          replicated=(mesh, face_colors), split=(cameras,), out_split=True)
-    return _render_jit(mesh, cameras, plan, face_colors, **static)
+                          replicated=(mesh, colors), split=(cameras,), out_split=True)
+    return _render_jit(mesh, cameras, plan, colors, **static)
 
 
 def _splat_windows(fs: Faces, plan: RasterPlan, n_faces: int, cfg: SplatConfig):
@@ -280,16 +294,19 @@ def _splat_native(fs: Faces, cfg: SplatConfig):
 def _render_jit(mesh, cameras, plan, colors, *, channels, sigma, gamma, znear, cull, light, ambient, bg, return_info,
                 native, smooth):
     bg = dict(bg)
-    attrs = tuple(c for c in ("normal", "shaded", "color") if c in channels)
+    attrs = tuple(c for c in ("normal", "shaded", "color", "values") if c in channels)
     want_depth = "depth" in channels
+    colors, values = colors
     fs = face_setup(
         mesh, cameras, sigma=sigma, znear=znear, cull=cull, attrs=attrs,
         light=light, ambient=ambient, face_colors=None if smooth else colors, vertex_colors=colors if smooth else None,
+        vertex_values=values,
     )
     cfg = SplatConfig(
         height=cameras.height, width=cameras.width, windows=(), sigma=sigma, gamma=gamma,
         want_cov=True, n_attr=sum(CHANNEL_SIZES[c] for c in attrs), want_depth=want_depth,
-        background=sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ()), attr_planes=smooth,
+        background=sum((bg[c] for c in attrs), ()) + (bg["depth"] if want_depth else ()),
+        attr_planes=smooth or values is not None,
     )
     windows = lambda f: _splat_windows(f, plan, mesh.face_capacity, cfg)
     if native:  # no plan given: the native kernel on CPU, the JAX splat with `plan` elsewhere
