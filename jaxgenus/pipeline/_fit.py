@@ -99,9 +99,11 @@ def _history(setup: Setup, start: Start, options: ReconstructOptions, run: Cycle
 
 
 def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: FitIndex, *, t0: float,
-        callback: Callable | None, say: Callable[[str], None]) -> Reconstruction:
+        callback: Callable | None, say: Callable[[str], None], finish: Callable | None = None) -> Reconstruction:
     """One fit from `start` with `options` (module doc). `t0`: when this fit's clock started
-    (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted)."""
+    (`perf_counter`); `callback(row, mesh)` after every cycle (user frame; its time is not counted);
+    `finish(mesh, albedo, finest) -> (mesh, albedo)`: the stages after the fit (user frame), run
+    before the verdict, which then judges the mesh they return (the one a run writes)."""
     levels = fit_levels(setup, options, start.mesh)
     lengths = world_lengths(setup, options, levels)
     polish = polish_count(options, levels[-1])
@@ -125,29 +127,50 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     mesh, app = run.state.mesh, run.state.appearance
     g = _result_genus(mesh)
     genus_ok = g == (0 if options.start == "sphere" else setup.genus)
-    photos = setup.images if setup.targets.kind == "photo" else None
-    finest = levels[-1]
+    albedo = None if app is None else np.array(app.albedo[: int(mesh.n_vertices)], np.float32)
+    fitted = written = frame.mesh_to_world(mesh)
+    if finish is not None:
+        written, albedo = finish(fitted, albedo, min(lv.factor for lv in levels))
+    verdict = _verdict(setup, start, options, run, levels, genus_ok, mesh if written is fitted else written, albedo, say)
+    seconds = time.perf_counter() - t0 - run.callback_seconds
+    history = _history(setup, start, options, run, verdict, levels, seconds, index)
+    return Reconstruction(mesh=written, genus=g, genus_ok=genus_ok, history=history, options=options, albedo=albedo)
+
+
+def _verdict(setup: Setup, start: Start, options: ReconstructOptions, run: CycleRun, levels: list[Level],
+             genus_ok: bool, mesh: Mesh, albedo, say: Callable[[str], None]) -> Verdict:
+    """The verdict (`judge`, said) on `mesh`: the fitted mesh (canonical frame, as the state holds it,
+    appearance the state's) or the mesh the stages after the fit wrote (the user's frame; `albedo` its
+    per-vertex albedo)."""
+    app, frame, finest = run.state.appearance, setup.frame, levels[-1]
+    written = mesh is not run.state.mesh
+    appearance = None if app is None else (app.albedo, app.lighting)
+    if written:
+        v, f = mesh.to_numpy()
+        mesh = Mesh.from_numpy(((np.asarray(v, np.float64) - frame.centre) / frame.scale).astype(np.float32), f)
+        if app is not None:
+            padded = np.zeros((mesh.vertex_capacity, 3), np.float32)
+            padded[: len(albedo)] = albedo
+            appearance = (padded, app.lighting)
     consistency = None
     if finest.table is not None:  # the residual at the finest level fitted (straight colours), views in order
         level = setup.all_views(np.asarray(pyramid_level(setup.targets.fit, finest.factor, normals=False)))
         a = level[..., 3:]
         level = np.concatenate([np.where(a > 0, level[..., :3] / np.maximum(a, 1e-6), 0.0), a], axis=-1)
         consistency = (scaled_cameras(setup.cams, finest.factor), level, finest.table)
-    verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok,
-                             None if app is None else (app.albedo, app.lighting), photos,
+    t0 = time.perf_counter()
+    verdict = judge(Evidence(mesh, start.mesh, setup.cams, setup.targets, run.steps, run.cycles, genus_ok, appearance,
+                             setup.images if setup.targets.kind == "photo" else None,
                              carved_start=start.kind.startswith("visual_hull"), consistency=consistency,
                              held=setup.held), options)
-    say(f"verdict: {'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
+    say(f"verdict{f' on the mesh written ({int(mesh.n_faces)} faces)' if written else ''}: "
+        f"{'ok' if verdict.ok else 'NOT OK'}; silhouette IoU min {min(verdict.silhouette_iou):.3f}, "
         f"mean {np.mean(verdict.silhouette_iou):.3f} over {len(verdict.silhouette_iou)} views"
         + ("" if verdict.normal_error_deg is None else f"; normal error mean {np.mean(verdict.normal_error_deg):.2f} deg")
         + ("" if verdict.photo_consistency is None or not np.isfinite(verdict.photo_consistency).any() else
            f"; photo-consistency residual median {np.nanmedian(verdict.photo_consistency):.3f} (start "
-           f"{np.nanmedian(verdict.start_photo_consistency):.3f})"))
-    seconds = time.perf_counter() - t0 - run.callback_seconds
-    history = _history(setup, start, options, run, verdict, levels, seconds, index)
-    albedo = None if app is None else np.array(app.albedo[: int(mesh.n_vertices)], np.float32)
-    return Reconstruction(mesh=frame.mesh_to_world(mesh), genus=g, genus_ok=genus_ok, history=history,
-                          options=options, albedo=albedo)
+           f"{np.nanmedian(verdict.start_photo_consistency):.3f})") + f" ({time.perf_counter() - t0:.0f}s)")
+    return verdict
 
 
 # A refit that lowers the mean normal error by less than this share of it predicts a next

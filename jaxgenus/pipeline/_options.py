@@ -52,7 +52,6 @@ ENTRIES: dict[str, Any] = {
     "fill_unseen": True,  # photos: the surface no camera sees onto the membrane the seen surface spans
     "fit_outline": True,  # the outline onto the masks at the images' own size
     "fit_photo_depth": True,  # photos: the depth at the images' own size (plane sweep along the normals)
-    "depth_edge_px": 8.0,  # pixels: subdivide before those two while the median edge is longer (0: no)
 }
 _WEIGHT_ENTRIES = ("shading_ratio", "consistency_blur", "stereo", "albedo_edges", "carve")
 _OPTIMIZE_ENTRIES = ("average", "adam_quantile", "crop", "max_pixels")
@@ -208,7 +207,7 @@ class ReconstructOptions:
         _number("lr_decay", self.lr_decay, 0.0, 1.0, open_lo=True)
         for name in ("initial_edge_length", "final_edge_length"):
             _number(name, getattr(self, name), 0.0, math.inf, open_lo=True)
-        for name in ("refit_carve", "fine_below", "stereo_carve", "depth_edge_px"):
+        for name in ("refit_carve", "fine_below", "stereo_carve"):
             _number(name, getattr(self, name), 0.0, math.inf)
         for name in ("fill_unseen", "fit_outline", "fit_photo_depth", "fine_texture", "one_jit", "adaptive"):
             _flag(name, getattr(self, name))

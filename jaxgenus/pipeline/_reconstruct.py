@@ -40,7 +40,6 @@ from jaxgenus.pipeline._start_stage import (CHECK_TRIES, estimate_line, evidence
                                              first_edge_length, first_start,
                                              holes_not_had, image_handle_records, images_estimate)
 
-_DEPTH_MAX_FACES = 1 << 20
 #: The result is subdivided only where its median edge is longer than this many pixels at the images'
 #: own size: a finer mesh holds no detail the images show (a 64-px torus stays at the faces it was fitted with).
 SUBDIVIDE_EDGE_PX = 2.0
@@ -94,8 +93,8 @@ def _reads_interior(setup: Setup, genus) -> bool:
             and setup.options.start != "sphere")
 
 
-def _first_fit(setup: Setup, key, index: FitIndex, t0: float, callback, say):
-    """`(setup, start, rec)`: the first fit of a run, from its first start."""
+def _first_fit(setup: Setup, key, index: FitIndex, t0: float, callback, say, finish=None):
+    """`(setup, start, rec)`: the first fit of a run, from its first start (`finish`: as `fit`'s)."""
     def fit_genus(g: int) -> Reconstruction:  # the hidden-handle stage: the same setup fitted at the hull's genus
         pre = dataclasses.replace(setup, genus=g, options=setup.options.replaced(hidden_handles="drill"))
         step = lambda line: say(f"hidden handles: fit at genus {g}: {line}")  # noqa: E731
@@ -104,7 +103,7 @@ def _first_fit(setup: Setup, key, index: FitIndex, t0: float, callback, say):
 
     start = first_start(setup, fit_genus, say)
     say(start_line(start, setup.genus, time.perf_counter() - t0))
-    return setup, start, fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say)
+    return setup, start, fit(setup, start, setup.options, key, index, t0=t0, callback=callback, say=say, finish=finish)
 
 
 def _with_holes(setup: Setup, rec: Reconstruction, key, index: FitIndex, t0: float, callback, say, *,
@@ -230,20 +229,20 @@ def reconstruct(
     n_refits = options.refit_count(setup.cams.height, setup.cams.width, setup.targets.kind)
     index = FitIndex(0, 1 + n_refits)
 
-    setup, start, rec = _first_fit(setup, key, index, t0, callback, say)
+    finish = _finishing(setup, cams, say)
+    last = not (n_refits or _reads_interior(setup, genus))  # the first fit is the last: it judges the mesh written
+    setup, start, rec = _first_fit(setup, key, index, t0, callback, say, finish if last else None)
     if _reads_interior(setup, genus):
         setup, rec = _with_holes(setup, rec, key, index, t0, callback, say)
     if n_refits and rec.genus_ok:
         rec = refits(rec, setup, options, n_refits, key, callback, say)
     if setup.targets.kind == "normals" and rec.genus_ok:
         rec = _topology_checked(rec, setup, say)
-    fitted = rec.mesh
-    _heap_returned()
-    if setup.options.fill_unseen and setup.targets.kind == "photo":
-        rec = _filled(rec, cams, say)
-    rec = _subdivided_if_coarse(rec, cams, say) if setup.options.subdivide else rec
-    rec = _at_full_size(rec, setup, say)
-    rec = rec if rec.mesh is fitted else _as_written(rec, setup, say)
+    if not last:
+        finest = min((r["factor"] for r in rec.history.resolution), default=1)
+        mesh, albedo = finish(rec.mesh, rec.albedo, finest)
+        if mesh is not rec.mesh:
+            rec = _as_written(dataclasses.replace(rec, mesh=mesh, albedo=albedo), setup, say)
     return dataclasses.replace(rec, history=dataclasses.replace(
         rec.history, seconds=time.perf_counter() - t0 - waited[0], faces=int(rec.mesh.n_faces)))
 
@@ -307,41 +306,56 @@ def _topology_checked(rec: Reconstruction, setup: Setup, say: Callable[[str], No
                                                                 warnings=rec.history.warnings + [why]))
 
 
-def _filled(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
-    """`rec` with the surface no camera sees on the membrane around it (`ReconstructOptions.fill_unseen`)."""
-    v, f = rec.mesh.to_numpy()
+def _finishing(setup: Setup, cams: Cameras, say: Callable[[str], None]) -> Callable:
+    """The stages after the fit as `finish(mesh, albedo, finest) -> (mesh, albedo)` (the user's frame;
+    `finest`: the finest level fitted, 1/`finest` of the images' size): photos' unseen surface
+    (`fill_unseen`), a subdivision where the mesh is coarser than the images (`subdivide`), the
+    outline and, for photos, the depth at the images' own size (`_at_full_size`). The mesh
+    returned is the one the run writes; it is the input itself when no stage changed it."""
+    def finish(mesh: Mesh, albedo, finest: int):
+        _heap_returned()
+        if setup.options.fill_unseen and setup.targets.kind == "photo":
+            mesh = _filled(mesh, cams, say)
+        if setup.options.subdivide:
+            mesh, albedo = _subdivided_if_coarse(mesh, albedo, cams, say)
+        return _at_full_size(mesh, albedo, finest, setup, say)
+    return finish
+
+
+def _filled(mesh: Mesh, cams: Cameras, say: Callable[[str], None]) -> Mesh:
+    """`mesh` with the surface no camera sees on the membrane around it (`ReconstructOptions.fill_unseen`)."""
+    v, f = mesh.to_numpy()
     fill = fill_unseen((v, f), cams)
     n = int(fill.moved.sum())
     if n == 0:
         say("unseen surface: every vertex in some camera's frame is seen by one (ReconstructOptions.fill_unseen)")
-        return rec
+        return mesh
     scale = float(np.linalg.norm(np.ptp(v, axis=0)))
     say(f"unseen surface: {n} of {len(v)} vertices ({100 * n / len(v):.0f}%) no camera sees moved onto the "
         f"membrane the seen surface spans, median {np.median(fill.distance[fill.moved]) / scale:.3f} and at most "
         f"{fill.distance.max() / scale:.3f} of the mesh's diagonal (ReconstructOptions.fill_unseen=False: off)")
-    return dataclasses.replace(rec, mesh=Mesh.from_numpy(fill.vertices.astype(v.dtype), f))
+    return Mesh.from_numpy(fill.vertices.astype(v.dtype), f)
 
 
-def _subdivided(rec: Reconstruction, say: Callable[[str], None],
-                why: str = "the new vertices on the smooth surface through the fitted ones (Phong; "
-                           "ReconstructOptions.subdivide=False: off)") -> Reconstruction:
-    """`rec` with its mesh (and albedo) through one Phong subdivision (`ReconstructOptions.subdivide`)."""
-    sub = phong_subdivision(rec.mesh, values=rec.albedo)
-    say(f"subdivided: {int(rec.mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, {why}")
-    return dataclasses.replace(rec, mesh=sub.mesh, albedo=sub.values)
+def _subdivided(mesh: Mesh, albedo, say: Callable[[str], None], why: str):
+    """`(mesh, albedo)` through one Phong subdivision (`ReconstructOptions.subdivide`)."""
+    sub = phong_subdivision(mesh, values=albedo)
+    say(f"subdivided: {int(mesh.n_faces)} -> {int(sub.mesh.n_faces)} faces, {why}")
+    return sub.mesh, sub.values
 
 
-def _subdivided_if_coarse(rec: Reconstruction, cams: Cameras, say: Callable[[str], None]) -> Reconstruction:
-    """`rec` through one Phong subdivision when its median edge is longer than `SUBDIVIDE_EDGE_PX` at
-    the images' own size (`ReconstructOptions.subdivide`), else as fitted (said)."""
-    v, f = rec.mesh.to_numpy()
+def _subdivided_if_coarse(mesh: Mesh, albedo, cams: Cameras, say: Callable[[str], None]):
+    """`(mesh, albedo)` through one Phong subdivision when the median edge is longer than
+    `SUBDIVIDE_EDGE_PX` at the images' own size (`ReconstructOptions.subdivide`), else as fitted (said)."""
+    v, f = mesh.to_numpy()
     px = _median_edge_px(np.asarray(v, np.float64), np.asarray(f), cams)
     if px <= SUBDIVIDE_EDGE_PX:
         say(f"not subdivided: the median edge is {px:.1f} px at {cams.width}x{cams.height}, as fine as the images "
             f"resolve ({SUBDIVIDE_EDGE_PX:g} px or less)")
-        return rec
-    return _subdivided(rec, say, f"the median edge {px:.1f} px at {cams.width}x{cams.height}; the new vertices on the "
-                                 f"smooth surface through the fitted ones (Phong; ReconstructOptions.subdivide=False: off)")
+        return mesh, albedo
+    return _subdivided(mesh, albedo, say, f"the median edge {px:.1f} px at {cams.width}x{cams.height}; the new vertices "
+                                          "on the smooth surface through the fitted ones (Phong; "
+                                          "ReconstructOptions.subdivide=False: off)")
 
 
 def _median_edge_px(v: np.ndarray, f: np.ndarray, cams: Cameras) -> float:
@@ -356,33 +370,18 @@ def _median_edge_px(v: np.ndarray, f: np.ndarray, cams: Cameras) -> float:
     return float(np.median(length / np.maximum(near, 1e-12)) * np.mean(np.asarray(cams.focal)))
 
 
-def _finer_for_photos(rec: Reconstruction, cams: Cameras, edge_px: float, say: Callable[[str], None]) -> Reconstruction:
-    """`rec` through Phong subdivisions while its median edge is longer than `edge_px` pixels at the
-    images' own size, up to `_DEPTH_MAX_FACES` faces (`ReconstructOptions.depth_edge_px`)."""
-    while True:
-        v, f = rec.mesh.to_numpy()
-        px = _median_edge_px(np.asarray(v, np.float64), np.asarray(f), cams)
-        if px <= edge_px or 4 * len(f) > _DEPTH_MAX_FACES:
-            return rec
-        rec = _subdivided(rec, say, f"for the photos' detail: the median edge {px:.1f} px at {cams.width}x"
-                                    f"{cams.height} (more than {edge_px:g}; ReconstructOptions.depth_edge_px=0: off)")
-
-
-def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
-    """`rec` with its outline on the masks at their own size (`ReconstructOptions.fit_outline`) and,
+def _at_full_size(mesh: Mesh, albedo, finest: int, setup: Setup, say: Callable[[str], None]):
+    """`(mesh, albedo)` with the outline on the masks at their own size (`ReconstructOptions.fit_outline`) and,
     for photos, its surface where the photos at their own size agree (`fit_photo_depth`), where the
     finest level fitted was coarser than the images. With the views split over processes each
     process works with its own views and the moves are summed over them (the same mesh in each)."""
     opts = setup.options
-    finest = min((r["factor"] for r in rec.history.resolution), default=1)
     depth = opts.fit_photo_depth and setup.targets.kind == "photo"
     split = setup.held is not None and len(setup.held) < len(setup.cams)  # this process holds only some views
     if finest <= 1 or not (opts.fit_outline or depth):
-        return rec
+        return mesh, albedo
     cams, fixed = setup.world_cams, None
-    if depth and opts.depth_edge_px > 0:
-        rec = _finer_for_photos(rec, cams, opts.depth_edge_px, say)
-    v, f = rec.mesh.to_numpy()
+    v, f = mesh.to_numpy()
     if opts.fit_outline:
         # the fit placed its outline to about a pixel of the size it fitted: look that far (and a bit) past the edges
         here = cams if setup.held is None else cams[setup.held]  # split: each process its views, the moves summed
@@ -407,4 +406,4 @@ def _at_full_size(rec: Reconstruction, setup: Setup, say: Callable[[str], None])
                 f"{fitted.ncc_before[0]:.3f} as fitted, {fitted.ncc_after[-1]:.3f} at the last sweep's best offsets "
                 f"({time.perf_counter() - t0:.0f}s; ReconstructOptions.fit_photo_depth=False: off)")
         v = fitted.vertices.astype(v.dtype)
-    return dataclasses.replace(rec, mesh=Mesh.from_numpy(v, f))
+    return Mesh.from_numpy(v, f), albedo

@@ -56,10 +56,10 @@ from jaxgenus.geometry import Cameras, Mesh
 from jaxgenus.optim import consistency_windows, gathered_views
 from jaxgenus.pipeline._history import History
 from jaxgenus.pipeline._options import ReconstructOptions
-from jaxgenus.rendering import plan_render, render, render_photo
+from jaxgenus.rendering import plan_render, render, shading_colors
 
-__all__ = ["Evidence", "Verdict", "consistency_residuals", "judge", "judged_as_written", "photo_errors",
-           "silhouette_ious"]
+__all__ = ["Evidence", "Verdict", "ViewScores", "consistency_residuals", "judge", "judged_as_written", "photo_errors",
+           "silhouette_ious", "view_scores"]
 
 
 class Verdict(NamedTuple):
@@ -103,48 +103,60 @@ def _plan(mesh: Mesh, cams: Cameras, sigma: float):
     return None if jax.default_backend() == "cpu" else plan_render(mesh, cams, sigma=sigma)
 
 
-def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None):
-    """Per-view IoU of the rendered silhouette with `alpha (N, H, W)` (both at 0.5), and with
-    `normals (N, H, W, 3)` the per-view mean angle (degrees) between rendered and target
-    normals over the pixels both cover (NaN where none). Views are rendered in chunks."""
-    channels = ("alpha",) if normals is None else ("alpha", "normal")
-    ious, errors, plan = [], [], _plan(mesh, cams, sigma)
+class ViewScores(NamedTuple):
+    """Per view: the silhouette IoU, and where asked the mean normal angle (degrees) and the photometric error."""
+
+    silhouette_iou: list[float]
+    normal_error_deg: list[float] | None
+    photo_error: list[float] | None
+
+
+def view_scores(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None, photos=None,
+                appearance=None, shading: str = "flat") -> ViewScores:
+    """Per view, from one render of `mesh` per chunk of views: the IoU of the rendered silhouette with
+    `alpha (N, H, W)` (both at 0.5); with `normals (N, H, W, 3)` the mean angle (degrees) between rendered
+    and target normals over the pixels both cover (NaN where none); with `photos (N, H, W, 4)` (straight;
+    uint8 / uint16 as `unit_float` reads them) and `appearance = (albedo, lighting)` the mean absolute RGB
+    difference of `render_photo` against them over the pixels both cover at alpha 0.5 (NaN where none)."""
+    photo = photos is not None and appearance is not None
+    channels = ("alpha",) + (("normal",) if normals is not None else ()) + (("color",) if photo else ())
+    kw = shading_colors(mesh, *appearance, shading) if photo else {}
+    ious, errors, perr, plan = [], [], [], _plan(mesh, cams, sigma)
     for idx, n in _chunks(cams):
-        img = np.asarray(render(mesh, cams[idx], channels=channels, sigma=sigma, plan=plan))[:n]
+        img = np.asarray(render(mesh, cams[idx], channels=channels, sigma=sigma, plan=plan, **kw))[:n]
         idx = idx[:n]
         mine, theirs = img[..., 0] >= 0.5, np.asarray(alpha[idx]) >= 0.5
         inter = (mine & theirs).sum(axis=(1, 2))
         union = (mine | theirs).sum(axis=(1, 2))
         ious += np.where(union > 0, inter / np.maximum(union, 1), 1.0).tolist()
-        if normals is None:
-            continue
-        both = mine & theirs
         for k, i in enumerate(idx):
-            m = img[k, ..., 1:4][both[k]].astype(np.float64)
-            t = np.asarray(normals[i], np.float64)[both[k]]
-            m = m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-12)
-            t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-12)
-            ang = np.degrees(np.arccos(np.clip(np.sum(m * t, axis=-1), -1.0, 1.0)))
-            errors.append(float(ang.mean()) if len(ang) else float("nan"))
-    return ious, (None if normals is None else errors)
+            if normals is not None:
+                both = mine[k] & theirs[k]
+                m = img[k, ..., 1:4][both].astype(np.float64)
+                t = np.asarray(normals[i], np.float64)[both]
+                m = m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-12)
+                t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-12)
+                ang = np.degrees(np.arccos(np.clip(np.sum(m * t, axis=-1), -1.0, 1.0)))
+                errors.append(float(ang.mean()) if len(ang) else float("nan"))
+            if photo:
+                target = unit_float(photos[i])
+                both = (img[k, ..., 0] >= 0.5) & (target[..., 3] >= 0.5)
+                rgb = img[k, ..., -3:][both].astype(np.float64) / np.maximum(img[k, ..., 0][both][:, None], 1e-6)
+                err = np.abs(rgb - target[both][:, :3].astype(np.float64)).mean(axis=-1)
+                perr.append(float(err.mean()) if len(err) else float("nan"))
+    return ViewScores(ious, errors if normals is not None else None, perr if photo else None)
+
+
+def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None):
+    """`(ious, normal errors or None)` of `view_scores`."""
+    return view_scores(mesh, cams, alpha, sigma=sigma, normals=normals)[:2]
 
 
 def photo_errors(mesh: Mesh, cams: Cameras, photos: np.ndarray, albedo, lighting, *, sigma: float,
                  shading: str = "flat") -> list[float]:
-    """Per view, the mean absolute RGB difference between `render_photo` and `photos (N, H, W, 4)`
-    (straight, not premultiplied; uint8 / uint16 as `unit_float` reads them) over the pixels both cover
-    at alpha 0.5 (NaN where none).
-    Views are rendered in chunks."""
-    errors, plan = [], _plan(mesh, cams, sigma)
-    for idx, n in _chunks(cams):
-        img = np.asarray(render_photo(mesh, cams[idx], albedo, lighting, sigma=sigma, shading=shading, plan=plan))
-        for k, i in enumerate(idx[:n]):
-            photo = unit_float(photos[i])
-            both = (img[k, ..., 3] >= 0.5) & (photo[..., 3] >= 0.5)
-            rgb = img[k][both][:, :3].astype(np.float64) / np.maximum(img[k][both][:, 3:], 1e-6)
-            err = np.abs(rgb - photo[both][:, :3].astype(np.float64)).mean(axis=-1)
-            errors.append(float(err.mean()) if len(err) else float("nan"))
-    return errors
+    """The photometric error per view of `view_scores` (`photos (N, H, W, 4)` straight RGBA, alpha their mask)."""
+    return view_scores(mesh, cams, np.asarray(photos)[..., 3], sigma=sigma, photos=photos, appearance=(albedo, lighting),
+                       shading=shading).photo_error
 
 
 def consistency_residuals(mesh: Mesh, cams: Cameras, photos: np.ndarray, table: np.ndarray, *,
@@ -253,7 +265,10 @@ def judge(evidence: Evidence, options: ReconstructOptions, *, consistency_measur
     def every(scores):  # a per-view list with the other processes' views
         return None if scores is None else gathered_views(np.asarray(scores, np.float64), e.held, len(cams)).tolist()
 
-    iou, nerr = map(every, silhouette_ious(result, here, targets.alpha, sigma=sigma, normals=targets.normals))
+    photo = e.appearance is not None
+    scores = view_scores(result, here, targets.alpha, sigma=sigma, normals=targets.normals, photos=e.photos if photo else None,
+                         appearance=e.appearance, shading=options.render.shading)
+    iou, nerr = every(scores.silhouette_iou), every(scores.normal_error_deg)
     start_iou = e.start_iou if e.start_iou is not None else every(silhouette_ious(start, here, targets.alpha,
                                                                                  sigma=sigma)[0])
     fail, warn = [], []
@@ -306,7 +321,7 @@ def judge(evidence: Evidence, options: ReconstructOptions, *, consistency_measur
         consistency_measured = consistency_measured or bool(np.isfinite(pcon).any())
     perr = None
     if e.appearance is not None:
-        perr = every(photo_errors(result, here, e.photos, *e.appearance, sigma=sigma, shading=options.render.shading))
+        perr = every(scores.photo_error)
         med = float(np.nanmedian(perr))
         if not med <= max_photo_error:
             (warn if consistency_measured else fail).append(
