@@ -26,18 +26,17 @@ def test_resolution_factors():
 
 
 def test_step_views_keep_a_step_within_its_pixels():
-    opts = jg.OptimizeOptions()  # 4 views, 2^21 pixels
-    assert jg.optim.step_views(24, 512, 512, opts) == (4, 0)  # 4 x 512^2 fit
+    opts = jg.OptimizeOptions()  # 4 views, 2^18 pixels
+    assert jg.optim.step_views(24, 256, 256, opts) == (4, 0)  # 4 x 256^2 fit
     assert jg.optim.step_views(2, 64, 64, opts) == (2, 0)  # fewer views than asked
-    assert jg.optim.step_views(41, 1200, 1600, opts) == (1, 0)  # DTU: one whole view (1.92M pixels)
-    assert jg.optim.step_views(41, 2048, 2048, opts) == (1, 1448)  # one view holds more: one 1448^2 window
-    assert jg.optim.step_views(41, 600, 800, opts) == (4, 0)
-    assert jg.optim.step_views(41, 1000, 1000, opts) == (2, 0)  # 2 whole views
+    assert jg.optim.step_views(41, 300, 400, opts) == (2, 0)  # DTU at 1/4: 2 whole views
+    assert jg.optim.step_views(24, 512, 512, opts) == (1, 0)  # one whole view
+    assert jg.optim.step_views(41, 1200, 1600, opts) == (1, 512)  # one view holds more: one 512^2 window
     assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, max_pixels=None)) == (4, 0)
+    assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, max_pixels=1 << 21)) == (1, 0)
     assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, crop=256)) == (4, 256)  # asked for
-    assert jg.optim.step_views(41, 1200, 1600, dataclasses.replace(opts, views_per_step=None)) == (1, 0)
-    assert jg.optim.step_views(41, 2000, 2000, dataclasses.replace(opts, views_per_step=None)) == (1, 1448)
-    assert jg.optim.step_views(41, 100, 100, dataclasses.replace(opts, views_per_step=None)) == (41, 0)
+    assert jg.optim.step_views(41, 2000, 2000, dataclasses.replace(opts, views_per_step=None)) == (1, 512)
+    assert jg.optim.step_views(41, 100, 100, dataclasses.replace(opts, views_per_step=None)) == (26, 0)
     with pytest.raises(ValueError, match="max_pixels"):
         jg.OptimizeOptions(max_pixels=0)
 

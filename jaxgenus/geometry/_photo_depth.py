@@ -40,7 +40,7 @@ from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_co
 
 __all__ = ["PhotoDepthFit", "fit_photo_depth"]
 
-_CHUNK = 128  # vertices a sweep call: its temporaries ~180 MiB at 49 views x 33 planes x 81 samples x 8 partners (710 at 512)
+_CHUNK = 128  # vertices a sweep call: its temporaries ~90 MiB at 49 views x 17 planes x 81 samples x 8 partners
 _LEVEL = 1.0 / 65535.0  # the colours' 16-bit step on the device
 
 
@@ -283,7 +283,7 @@ def _targets(score, count, spread, min_ncc: float, min_contrast: float):
 
 def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int = 2, neighbours: int = 8,
                     max_angle: float = 35.0, patch: int = 4, spacing: float = 1.5, search_px: float = 12.0,
-                    step_px: float = 0.75, smoothing: float = 0.1, min_ncc: float = 0.3,
+                    step_px: float = 1.5, smoothing: float = 0.1, min_ncc: float = 0.3,
                     min_contrast: float = 0.0115, held=None, total=None) -> PhotoDepthFit:
     """`mesh`'s vertices moved along their normals to where `photos` agree (module doc).
 
@@ -296,8 +296,8 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
         rounds: sweeps, each from the last one's surface; neighbours: views compared with the
             reference per vertex; max_angle: how far (degrees) from the reference they may look.
         patch, spacing: the reference square is `2 patch + 1` samples a side, `spacing` pixels apart.
-        search_px, step_px: the planes span +-`search_px` reference pixels along the normal in
-            steps of `step_px`.
+        search_px, step_px: the first round's planes span +-`search_px` reference pixels along the
+            normal in steps of `step_px`; each later round halves both.
         smoothing: the weight of the edge term of the solve; min_ncc, min_contrast: the least best
             score and the reference square's colour deviation (RMS over its samples and the three
             channels, in [0, 1] levels) a vertex needs to count.
@@ -345,7 +345,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     g = np.arange(-patch, patch + 1, dtype=np.float32) * spacing
     offsets = jnp.asarray(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2))
     n_half = int(np.floor(search_px / step_px))
-    steps = jnp.asarray(np.arange(-n_half, n_half + 1, dtype=np.float32) * step_px)
+    planes = np.arange(-n_half, n_half + 1, dtype=np.float32)  # in steps; a round's step is step_px / 2^round
     e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
     adj = sparse.coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(len(v0), len(v0))).tocsr()
     adj = ((adj + adj.T) > 0).astype(np.float64)
@@ -353,7 +353,9 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     lap = ((sparse.diags(np.asarray(adj.sum(axis=1)).ravel()) - adj) * smoothing).tocsr()
     v, measured, stats = v0.copy(), np.zeros(len(v0), bool), ([], [], [])
     cur = trimesh.Trimesh(v, faces, process=False)  # one mesh, its vertices set each sweep (`ray_intersector`)
-    for _ in range(rounds):
+    for k in range(rounds):
+        step = step_px / 2**k
+        steps = jnp.asarray(planes * step)
         cur.vertices = v
         normals = np.asarray(cur.vertex_normals)
         tol = 1e-3 * float(np.linalg.norm(np.ptp(v, axis=0)))
@@ -382,11 +384,11 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
         d = np.zeros(len(v))
         if len(free):
             system = (sparse.diags(weight[free] + 1e-6) + lap[free][:, free]).tocsc()
-            d[free] = sparse_linalg.spsolve(system, weight[free] * offset[free] * step_px * pixel[free])
-        d = np.clip(d, -search_px * pixel, search_px * pixel)
+            d[free] = sparse_linalg.spsolve(system, weight[free] * offset[free] * step * pixel[free])
+        d = np.clip(d, -n_half * step * pixel, n_half * step * pixel)
         if not np.isfinite(d).all():
             break
         v = v + d[:, None] * normals
-        for acc, value in zip(stats, (np.abs(offset[measured]) * step_px, at_zero[measured], top[measured])):
+        for acc, value in zip(stats, (np.abs(offset[measured]) * step, at_zero[measured], top[measured])):
             acc.append(float(np.mean(value)) if measured.any() else float("nan"))
     return PhotoDepthFit(v + shift, measured, np.linalg.norm(v - v0, axis=1), *(tuple(s) for s in stats))

@@ -34,7 +34,7 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 from jaxgenus.geometry import Cameras
-from jaxgenus.optim._pyramid import scaled_cameras
+from jaxgenus.optim._pyramid import scaled_cameras, window_reduce
 
 _HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
 
@@ -199,7 +199,7 @@ def _straight(photos, blur: float, colour: bool):
 
 
 def _window_sums(x, window: int, stride: int):
-    return jax.lax.reduce_window(x, 0.0, jax.lax.add, (1, window, window), (1, stride, stride), "VALID")
+    return window_reduce(x, 0.0, jax.lax.add, window, stride, "VALID")
 
 
 def _depth_steps(depth):
@@ -212,7 +212,7 @@ def _depth_steps(depth):
     d2v = jnp.abs(p[:, 2:, 1:-1] - 2 * p[:, 1:-1, 1:-1] + p[:, :-2, 1:-1])
     d2u = jnp.abs(p[:, 1:-1, 2:] - 2 * p[:, 1:-1, 1:-1] + p[:, 1:-1, :-2])
     step = jnp.maximum(d2u, d2v) > _DEPTH_STEP * inv
-    return jax.lax.reduce_window(step, False, jax.lax.bitwise_or, (1, 3, 3), (1, 1, 1), "SAME")
+    return window_reduce(step, False, jax.lax.bitwise_or, 3)
 
 
 def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W"], ref_cams: Cameras,
@@ -235,7 +235,7 @@ def consistency_windows(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W
     ref_img, nb_img = _straight(ref_photos, blur, colour), _straight(nb_photos, blur, colour)
     cover = jax.lax.stop_gradient(alpha)
     # away from the contours: there the depth is blended across the rim and the surface grazes the ray
-    covered = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
+    covered = window_reduce(cover, jnp.inf, jax.lax.min, 5) >= _COVER
     depth = depth / jnp.maximum(cover, _COVER)  # the render composites depth over 0 with its coverage
     covered = covered & ~_depth_steps(jax.lax.stop_gradient(depth))
     cam = lambda c: (c.rotation, c.translation, c.focal, c.principal_point)
@@ -268,7 +268,7 @@ def stereo_depth_cost(depth: Float[Array, "K H W"], alpha: Float[Array, "K H W"]
     the pixels (as the image terms are). Its basin is as wide as the stereo search, where the NCC of
     `photo_consistency` sees a pixel or two."""
     cover = jax.lax.stop_gradient(alpha)
-    covered = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
+    covered = window_reduce(cover, jnp.inf, jax.lax.min, 5) >= _COVER
     depth = depth / jnp.maximum(cover, _COVER)
     valid = covered & ~_depth_steps(jax.lax.stop_gradient(depth)) & jnp.isfinite(target) & (target > 0)
     t = jnp.where(valid, target, 1.0)

@@ -40,6 +40,8 @@ import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from jaxgenus.optim._pyramid import window_reduce
+
 __all__ = ["EDGE_LOG_RATIO", "MIN_LEVEL", "RATIO_BAND", "RATIO_OFFSET", "RATIO_SCALE", "albedo_edges",
            "shading_ratio_cost"]
 
@@ -69,7 +71,7 @@ def albedo_edges(photos: Float[Array, "N H W 4"], *, ratio: float = EDGE_LOG_RAT
     edge = pad_u(jump_u, True) | pad_u(jump_u, False) | pad_v(jump_v, True) | pad_v(jump_v, False)
     if band:
         size = 2 * band + 1
-        edge = jax.lax.reduce_window(edge, False, jax.lax.bitwise_or, (1, size, size), (1, 1, 1), "SAME")
+        edge = window_reduce(edge, False, jax.lax.bitwise_or, size)
     return edge
 
 
@@ -105,7 +107,7 @@ def shading_ratio_cost(alpha: Float[Array, "N H W"], irradiance: Float[Array, "N
     if not scale > 0:
         raise ValueError(f"scale must be > 0, got {scale!r}")
     cover = jax.lax.stop_gradient(alpha)
-    inner = -jax.lax.reduce_window(-cover, -jnp.inf, jax.lax.max, (1, 5, 5), (1, 1, 1), "SAME") >= _COVER
+    inner = window_reduce(cover, jnp.inf, jax.lax.min, 5) >= _COVER
     e = jnp.log(jnp.maximum(irradiance / jnp.maximum(alpha, _COVER)[..., None], MIN_LEVEL))
     mask = target[..., 3]
     rgb = target[..., :3] / jnp.maximum(mask, 1e-6)[..., None]

@@ -88,7 +88,8 @@ class OptimizeOptions:
             views hold more, a step samples fewer views (one at least), and when one view
             holds more, a random `s x s` window of it with `s^2 <= max_pixels`
             (`step_views`): the cost and memory of a step are bounded whatever the image
-            size. The default, 2^21, is 8 views of 512^2.
+            size. The default, 2^18, is 4 views of 256^2, or 2 of a 1600x1200 capture fitted
+            at a quarter of its size.
         renderer: `renderer(mesh, cameras, channels=..., **render.kwargs())`;
             `None` is `jaxgenus.render`.
         render: `RenderSettings` passed to the renderer (`None`: none are passed,
@@ -111,7 +112,7 @@ class OptimizeOptions:
     cg_max_iter: int = 2000
     average: float = 0.0
     crop: int = 0
-    max_pixels: int | None = 1 << 21
+    max_pixels: int | None = 1 << 18
     device_mesh: object = None
     albedo_learning_rate: float = 1e-2
     lighting_learning_rate: float = 5e-2

@@ -18,7 +18,8 @@ from jaxtyping import Array, Float, Int
 
 from jaxgenus.geometry import Cameras
 
-__all__ = ["crop_views", "pyramid_level", "resolution_factors", "scaled_cameras", "step_views", "target_boxes"]
+__all__ = ["crop_views", "pyramid_level", "resolution_factors", "scaled_cameras", "step_views", "target_boxes",
+           "window_reduce"]
 
 
 def resolution_factors(height: int, width: int, n_cycles: int, coarse: int, native_cycles: int) -> list[int]:
@@ -139,3 +140,11 @@ def step_views(n_views: int, height: int, width: int, options) -> tuple[int, int
     if height * width <= budget:
         return budget // (height * width), 0
     return 1, math.isqrt(budget)
+
+
+def window_reduce(x, init, op, size: int, stride: int = 1, padding: str = "SAME"):
+    """`jax.lax.reduce_window` of `x (N, H, W)` over `size x size` windows (`stride` apart, "SAME" or
+    "VALID"), as a pass along the rows and one along the columns: `2 size` operations a pixel instead
+    of `size^2`. For max, min, or, and and exact; for a sum the same up to the order of the additions."""
+    x = jax.lax.reduce_window(x, init, op, (1, size, 1), (1, stride, 1), padding)
+    return jax.lax.reduce_window(x, init, op, (1, 1, size), (1, 1, stride), padding)

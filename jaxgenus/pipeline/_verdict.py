@@ -84,8 +84,10 @@ CONSISTENCY_TOLERANCE = 0.05
 #: Pixels rendered at once by the verdict: views go through the renderer in chunks of at most
 #: this many pixels (one view at least), so its memory does not grow with the number of views. One
 #: view of 1600x1200: the renderer holds about 150 bytes a pixel while it runs (on the CPU, where
-#: chunks of four such views raised a DTU run's peak by 1.2 GB).
-CHUNK_PIXELS = 1 << 21
+#: chunks of four such views raised a DTU run's peak by 1.2 GB); the photo-consistency residual
+#: renders two views a view and compares windows of both, and in chunks of 2^21 pixels (17 views of
+#: 400x300) raised the peak by 0.9 GB.
+CHUNK_PIXELS = 1 << 19
 
 
 def _chunks(cams: Cameras) -> list[tuple[np.ndarray, int]]:
