@@ -105,3 +105,16 @@ def test_reconstruct_takes_large_images_through_the_schedule():
     assert res[-1] == {"factor": 1, "size": [256, 256], "crop": 64, "views": 4, "window": 64, "pixels": 4 * 64 * 64}
     assert rec.genus == 1
     assert min(rec.history["silhouette_iou"]) > 0.9
+
+
+def test_window_reduce_equals_one_2d_reduction():
+    window_reduce = _pyramid.window_reduce
+    x = jnp.asarray(np.random.default_rng(0).uniform(0.0, 1.0, (2, 37, 53)), jnp.float32)
+    two_d = lambda v, init, op, k, s, pad: jax.lax.reduce_window(v, init, op, (1, k, k), (1, s, s), pad)  # noqa: E731
+    for k in (3, 5, 9):
+        assert (window_reduce(x, jnp.inf, jax.lax.min, k) == two_d(x, jnp.inf, jax.lax.min, k, 1, "SAME")).all()
+        b = x > 0.9
+        assert (window_reduce(b, False, jax.lax.bitwise_or, k) == two_d(b, False, jax.lax.bitwise_or, k, 1, "SAME")).all()
+    summed = window_reduce(x, 0.0, jax.lax.add, 7, 3, "VALID")
+    np.testing.assert_allclose(summed, two_d(x, 0.0, jax.lax.add, 7, 3, "VALID"), rtol=1e-5)
+    assert summed.shape == (2, 11, 16)
