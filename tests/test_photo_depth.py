@@ -68,8 +68,9 @@ def test_exposure_differences_between_views_do_not_count(scene):
 
 
 def test_8_bit_photos_sweep_as_their_float_copies(scene):
-    """The photos are kept on the device as 16-bit levels: 8-bit levels map onto them exactly, so uint8
-    photos and the same photos as float32 in [0, 1] give the same surface."""
+    """8-bit photos stay 8-bit on the device (a quarter of float32's memory) and are read as the 16-bit
+    levels float photos are kept as (each 8-bit level is 257 of them, exactly), so uint8 photos and the
+    same photos as float32 in [0, 1] give the same surface."""
     cams, _, photos, pixel = scene
     eight = np.rint(np.clip(photos, 0.0, 1.0) * 255).astype(np.uint8)
     big = trimesh.creation.icosphere(subdivisions=3, radius=1.0 + 2.0 * pixel)

@@ -41,7 +41,7 @@ from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_co
 __all__ = ["PhotoDepthFit", "fit_photo_depth"]
 
 _CHUNK = 128  # vertices a sweep call: its temporaries ~90 MiB at 49 views x 17 planes x 81 samples x 8 partners
-_LEVEL = 1.0 / 65535.0  # the colours' 16-bit step on the device
+_LEVEL = 1.0 / 65535.0  # the colours' 16-bit step; 8-bit photos' levels are 257 of them (exactly)
 
 
 class PhotoDepthFit(NamedTuple):
@@ -73,7 +73,8 @@ def _sample(colour, cam, u, v):
     ax, ay = (x - x0)[..., None], (y - y0)[..., None]
     flat = colour.reshape(-1, 3)
     b = cam * (h * w) + y0 * w + x0
-    at = lambda i: flat[i].astype(jnp.float32) * _LEVEL  # noqa: E731
+    as16 = (lambda c: c.astype(jnp.uint16) * jnp.uint16(257)) if colour.dtype == jnp.uint8 else (lambda c: c)  # noqa: E731
+    at = lambda i: as16(flat[i]).astype(jnp.float32) * _LEVEL  # noqa: E731
     return (at(b) * (1 - ax) + at(b + 1) * ax) * (1 - ay) + (at(b + w) * (1 - ax) + at(b + w + 1) * ax) * ay
 
 
@@ -84,13 +85,15 @@ def _with_view(levels, k, view):
 
 
 def _device_colours(src: np.ndarray):
-    """The photos' colours `(N, H, W, 3)` on the device as 16-bit levels `_LEVEL` apart (half the memory
-    of float32), converted and written a view at a time into one device buffer: neither a float copy
-    nor a host copy of all the photos is made (a whole-stack transfer held two)."""
-    levels = jnp.zeros(src.shape[:3] + (3,), jnp.uint16)
+    """The photos' colours `(N, H, W, 3)` on the device: 8-bit photos as they are, others as 16-bit
+    levels `_LEVEL` apart (half the memory of float32), converted and written a view at a time into one
+    device buffer: neither a float copy nor a host copy of all the photos is made (a whole-stack
+    transfer held two)."""
+    dtype = np.uint8 if src.dtype == np.uint8 else np.uint16
+    levels = jnp.zeros(src.shape[:3] + (3,), dtype)
     for k in range(len(src)):
-        view = np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0)).astype(np.uint16)
-        levels = _with_view(levels, k, view)
+        view = src[k] if dtype == np.uint8 else np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0)).astype(dtype)
+        levels = _with_view(levels, k, np.ascontiguousarray(view))
     return levels
 
 
@@ -175,8 +178,8 @@ def _squares_on_mask(photos, reach: float):
     if np.shape(photos)[-1] != 4:
         return None
     alpha = np.asarray(photos)[..., 3]
-    alpha = alpha / 255.0 if alpha.dtype == np.uint8 else alpha
-    return np.stack([ndimage.distance_transform_edt(np.pad(a > 0.5, 1, mode="edge"))[1:-1, 1:-1] > reach for a in alpha])
+    half = 127 if alpha.dtype == np.uint8 else 0.5  # a view at a time: no float copy of every mask
+    return np.stack([ndimage.distance_transform_edt(np.pad(a > half, 1, mode="edge"))[1:-1, 1:-1] > reach for a in alpha])
 
 
 def _on(on_mask, v, arrays):
@@ -322,7 +325,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     slot = np.full(n_all, -1, np.int64)
     slot[held] = np.arange(len(held))
     total = total if split else (lambda x: x)
-    src = photo_array(photos, "photos", len(held))
+    src = photo_array(photos, "photos", len(held), keep_uint8=True)
     on_mask = _squares_on_mask(photos, patch * spacing * np.sqrt(2.0) + 1.0)
     if src.shape[1:3] != (cameras.height, cameras.width):
         raise ValueError(f"photos: size {src.shape[1:3]} differs from the cameras' {(cameras.height, cameras.width)}")

@@ -94,7 +94,8 @@ def ray_intersector(tm: trimesh.Trimesh):
     return RayMeshIntersector(tm)
 
 
-def photo_array(x, name: str, n: int | None = None) -> np.ndarray:
+def photo_array(x, name: str, n: int | None = None, *, keep_uint8: bool = False) -> np.ndarray:
+    """The checked RGB of photos `x` as float32 in [0, 1]; `keep_uint8`: 8-bit photos as they are."""
     x = np.asarray(x)
     if x.ndim != 4 or x.shape[-1] not in (3, 4):
         raise ValueError(f"{name}: expected (N, H, W, 3 or 4) photos, got shape {x.shape}")
@@ -102,6 +103,8 @@ def photo_array(x, name: str, n: int | None = None) -> np.ndarray:
         raise ValueError(f"{name}: {len(x)} photos for {n} cameras")
     if x.dtype != np.uint8 and not all(np.isfinite(view).all() for view in x):  # a view at a time: no full-size mask
         raise ValueError(f"{name}: photos must be finite")
+    if x.dtype == np.uint8 and keep_uint8:
+        return x[..., :3]
     if x.dtype == np.uint8:
         out = x[..., :3].astype(np.float32)
         out *= np.float32(1.0 / 255.0)

@@ -18,7 +18,6 @@ a sphere start, no remeshing, the same renderer and optimizer.
 
 from __future__ import annotations
 
-import ctypes
 import dataclasses
 import time
 from typing import Callable
@@ -28,6 +27,7 @@ import numpy as np
 
 from jaxgenus.geometry import Cameras, Mesh, fill_unseen, fit_outline, fit_photo_depth, phong_subdivision
 from jaxgenus.optim import summed_over_processes
+from jaxgenus.pipeline._cycles import heap_returned
 from jaxgenus.pipeline._fit import FitIndex, estimate_warnings, fit, refits, start_line
 from jaxgenus.pipeline._handles import HoleTests, hole_tests
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, Reconstruction
@@ -247,15 +247,6 @@ def reconstruct(
         rec.history, seconds=time.perf_counter() - t0 - waited[0], faces=int(rec.mesh.n_faces)))
 
 
-def _heap_returned() -> None:
-    """Give the heap the fit freed back to the system before the full-size stages (glibc's `malloc_trim`;
-    elsewhere nothing): its arenas otherwise keep it (0.8 GB after the fit of DTU scan24 at full size)."""
-    try:
-        ctypes.CDLL("libc.so.6").malloc_trim(0)
-    except (OSError, AttributeError):
-        pass
-
-
 def _as_written(rec: Reconstruction, setup: Setup, say: Callable[[str], None]) -> Reconstruction:
     """`rec` judged again on its mesh as written, changed after the fit's verdict (`judged_as_written`)."""
     t0, frame, h = time.perf_counter(), setup.frame, rec.history
@@ -313,7 +304,7 @@ def _finishing(setup: Setup, cams: Cameras, say: Callable[[str], None]) -> Calla
     outline and, for photos, the depth at the images' own size (`_at_full_size`). The mesh
     returned is the one the run writes; it is the input itself when no stage changed it."""
     def finish(mesh: Mesh, albedo, finest: int):
-        _heap_returned()
+        heap_returned()
         if setup.options.fill_unseen and setup.targets.kind == "photo":
             mesh = _filled(mesh, cams, say)
         if setup.options.subdivide:
@@ -393,7 +384,7 @@ def _at_full_size(mesh: Mesh, albedo, finest: int, setup: Setup, say: Callable[[
         v, fixed = out.vertices.astype(v.dtype), out.moved
     if depth:
         t0 = time.perf_counter()
-        fitted = fit_photo_depth((v, f), cams, setup.targets.fit, fixed=fixed, held=setup.held if split else None,
+        fitted = fit_photo_depth((v, f), cams, setup.images, fixed=fixed, held=setup.held if split else None,
                                  total=summed_over_processes if split else None)
         n = int(fitted.measured.sum())
         if n == 0:

@@ -49,6 +49,7 @@ import dataclasses
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from jaxgenus.capture import Targets, unit_float
@@ -82,20 +83,48 @@ CONSISTENCY_TOLERANCE = 0.05
 
 
 #: Pixels rendered at once by the verdict: views go through the renderer in chunks of at most
-#: this many pixels (one view at least), so its memory does not grow with the number of views. One
-#: view of 1600x1200: the renderer holds about 150 bytes a pixel while it runs (on the CPU, where
-#: chunks of four such views raised a DTU run's peak by 1.2 GB); the photo-consistency residual
-#: renders two views a view and compares windows of both, and in chunks of 2^21 pixels (17 views of
-#: 400x300) raised the peak by 0.9 GB.
+#: this many pixels (one view, or a band of rows of one view where a view holds more), so its memory
+#: grows with neither the number of views nor their size. The renderer holds about 150 bytes a pixel
+#: while it runs on the CPU (chunks of four DTU views of 1600x1200 raised a run's peak by 1.2 GB);
+#: the photo-consistency residual renders two views a view and compares windows of both: chunks of
+#: 2^21 pixels (17 views of 400x300) raised the peak by 0.9 GB, of 2^19 by 0.3 GB; it takes 2^17.
 CHUNK_PIXELS = 1 << 19
 
 
-def _chunks(cams: Cameras) -> list[tuple[np.ndarray, int]]:
-    """`(views, n)` per chunk, all chunks of one size: the last one is padded by repeating its last
-    view, of which only the first `n` count, so every chunk runs one compiled program."""
-    size = min(len(cams), max(1, CHUNK_PIXELS // (cams.height * cams.width)))
+def _chunks(cams: Cameras, pixels: int | None = None) -> list[tuple[np.ndarray, int]]:
+    """`(views, n)` per chunk of at most `pixels` (`CHUNK_PIXELS`) but one view, all chunks of one size: the
+    last one is padded by repeating its last view, of which only the first `n` count, so every chunk
+    runs one compiled program."""
+    size = min(len(cams), max(1, (pixels or CHUNK_PIXELS) // (cams.height * cams.width)))
     return [(np.minimum(np.arange(i, i + size), len(cams) - 1), min(size, len(cams) - i))
             for i in range(0, len(cams), size)]
+
+
+def _band_rows(cams: Cameras, plan) -> int:
+    """The rows `view_scores` renders at once: a view's, or where it holds more than `CHUNK_PIXELS`
+    and the CPU's kernel renders (no `plan`: its memory goes with the pixels), fewer. The JAX splat's
+    memory goes with the faces each view draws, whatever its rows: it renders whole views."""
+    return cams.height if plan is not None else min(cams.height, max(1, CHUNK_PIXELS // cams.width))
+
+
+def _pieces(cams: Cameras, band: int) -> list[tuple[np.ndarray, int, int, int, int]]:
+    """What `view_scores` renders at once, `(views, n, top, first, rows)`: rows `top ...` of `views`
+    (`top + first ...` of them count, `rows` of them, of the first `n` views). Views of at most
+    `band` rows go in chunks of whole views (`_chunks`); taller ones a band of rows at a time, all
+    bands as tall (the last one moved up to end at the image's last row), so one program renders all."""
+    h = cams.height
+    if band >= h:
+        return [(idx, n, 0, 0, h) for idx, n in _chunks(cams)]
+    return [(np.array([i]), 1, min(r, h - band), r - min(r, h - band), min(band, h - r))
+            for i in range(len(cams)) for r in range(0, h, band)]
+
+
+def _band(cams: Cameras, top: int, rows: int) -> Cameras:
+    """`cams` seeing rows `top ... top + rows` of their images (all rows when `rows` is the height)."""
+    if top == 0 and rows == cams.height:
+        return cams
+    shift = jnp.asarray([0.0, top], cams.principal_point.dtype)
+    return Cameras(cams.rotation, cams.translation, cams.focal, cams.principal_point - shift, rows, cams.width)
 
 
 def _plan(mesh: Mesh, cams: Cameras, sigma: float):
@@ -115,7 +144,7 @@ class ViewScores(NamedTuple):
 
 def view_scores(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None, photos=None,
                 appearance=None, shading: str = "flat") -> ViewScores:
-    """Per view, from one render of `mesh` per chunk of views: the IoU of the rendered silhouette with
+    """Per view, from renders of `mesh` of at most `CHUNK_PIXELS` (`_pieces`): the IoU of the rendered silhouette with
     `alpha (N, H, W)` (both at 0.5); with `normals (N, H, W, 3)` the mean angle (degrees) between rendered
     and target normals over the pixels both cover (NaN where none); with `photos (N, H, W, 4)` (straight;
     uint8 / uint16 as `unit_float` reads them) and `appearance = (albedo, lighting)` the mean absolute RGB
@@ -123,30 +152,32 @@ def view_scores(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, n
     photo = photos is not None and appearance is not None
     channels = ("alpha",) + (("normal",) if normals is not None else ()) + (("color",) if photo else ())
     kw = shading_colors(mesh, *appearance, shading) if photo else {}
-    ious, errors, perr, plan = [], [], [], _plan(mesh, cams, sigma)
-    for idx, n in _chunks(cams):
-        img = np.asarray(render(mesh, cams[idx], channels=channels, sigma=sigma, plan=plan, **kw))[:n]
-        idx = idx[:n]
-        mine, theirs = img[..., 0] >= 0.5, np.asarray(alpha[idx]) >= 0.5
-        inter = (mine & theirs).sum(axis=(1, 2))
-        union = (mine | theirs).sum(axis=(1, 2))
-        ious += np.where(union > 0, inter / np.maximum(union, 1), 1.0).tolist()
-        for k, i in enumerate(idx):
+    plan = _plan(mesh, cams, sigma)
+    tall = _band_rows(cams, plan)
+    sums = np.zeros((len(cams), 6))  # per view: intersection, union, angle sum, count, error sum, count
+    for idx, n, top, first, rows in _pieces(cams, tall):
+        img = np.asarray(render(mesh, _band(cams[idx], top, tall), channels=channels, sigma=sigma, plan=plan,
+                                **kw))[:n, first:first + rows]
+        at = slice(top + first, top + first + rows)
+        for k, i in enumerate(idx[:n]):
+            mine, theirs = img[k, ..., 0] >= 0.5, np.asarray(alpha[i, at]) >= 0.5
+            sums[i, :2] += (mine & theirs).sum(), (mine | theirs).sum()
             if normals is not None:
-                both = mine[k] & theirs[k]
+                both = mine & theirs
                 m = img[k, ..., 1:4][both].astype(np.float64)
-                t = np.asarray(normals[i], np.float64)[both]
+                t = np.asarray(normals[i, at], np.float64)[both]
                 m = m / np.maximum(np.linalg.norm(m, axis=-1, keepdims=True), 1e-12)
                 t = t / np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-12)
-                ang = np.degrees(np.arccos(np.clip(np.sum(m * t, axis=-1), -1.0, 1.0)))
-                errors.append(float(ang.mean()) if len(ang) else float("nan"))
+                sums[i, 2:4] += np.degrees(np.arccos(np.clip(np.sum(m * t, axis=-1), -1.0, 1.0))).sum(), both.sum()
             if photo:
-                target = unit_float(photos[i])
-                both = (img[k, ..., 0] >= 0.5) & (target[..., 3] >= 0.5)
+                target = unit_float(photos[i, at])
+                both = mine & (target[..., 3] >= 0.5)
                 rgb = img[k, ..., -3:][both].astype(np.float64) / np.maximum(img[k, ..., 0][both][:, None], 1e-6)
-                err = np.abs(rgb - target[both][:, :3].astype(np.float64)).mean(axis=-1)
-                perr.append(float(err.mean()) if len(err) else float("nan"))
-    return ViewScores(ious, errors if normals is not None else None, perr if photo else None)
+                sums[i, 4:6] += np.abs(rgb - target[both][:, :3].astype(np.float64)).mean(axis=-1).sum(), both.sum()
+    mean = lambda a, b: np.where(b > 0, a / np.maximum(b, 1), np.nan).tolist()  # noqa: E731
+    return ViewScores(np.where(sums[:, 1] > 0, sums[:, 0] / np.maximum(sums[:, 1], 1), 1.0).tolist(),
+                      mean(sums[:, 2], sums[:, 3]) if normals is not None else None,
+                      mean(sums[:, 4], sums[:, 5]) if photo else None)
 
 
 def silhouette_ious(mesh: Mesh, cams: Cameras, alpha: np.ndarray, *, sigma: float, normals=None):
@@ -169,7 +200,7 @@ def consistency_residuals(mesh: Mesh, cams: Cameras, photos: np.ndarray, table: 
     chunk one compiled program (renders and windows)."""
     out, plan = [], _plan(mesh, cams, sigma)
     windows = jax.jit(_windows, static_argnames=("sigma", "plan"))
-    for idx, n in _chunks(cams):
+    for idx, n in _chunks(cams, CHUNK_PIXELS // 4):  # two renders a view and the windows' sums of both
         nb = table[idx, 0]
         ref = np.asarray(photos[idx], np.float32)
         near = np.asarray(photos[nb], np.float32)
