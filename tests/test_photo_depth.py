@@ -78,6 +78,9 @@ def test_8_bit_photos_sweep_as_their_float_copies(scene):
     b = fit_photo_depth(big, cams, eight.astype(np.float32) / 255.0, rounds=1)
     assert a.measured.sum() > 50
     np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-9)
+    sixteen = eight.astype(np.uint16) * np.uint16(257)  # 16-bit photos (as reconstruct takes them): the same levels
+    c = fit_photo_depth(big, cams, sixteen, rounds=1)
+    np.testing.assert_allclose(c.vertices, b.vertices, rtol=0, atol=1e-9)
 
 
 def test_views_split_in_two_sweep_as_all_views_do(scene):

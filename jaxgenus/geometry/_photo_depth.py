@@ -85,14 +85,15 @@ def _with_view(levels, k, view):
 
 
 def _device_colours(src: np.ndarray):
-    """The photos' colours `(N, H, W, 3)` on the device: 8-bit photos as they are, others as 16-bit
+    """The photos' colours `(N, H, W, 3)` on the device: 8- and 16-bit photos as they are, others as 16-bit
     levels `_LEVEL` apart (half the memory of float32), converted and written a view at a time into one
     device buffer: neither a float copy nor a host copy of all the photos is made (a whole-stack
     transfer held two)."""
     dtype = np.uint8 if src.dtype == np.uint8 else np.uint16
     levels = jnp.zeros(src.shape[:3] + (3,), dtype)
     for k in range(len(src)):
-        view = src[k] if dtype == np.uint8 else np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0)).astype(dtype)
+        as_read = src.dtype in (np.uint8, np.uint16)
+        view = src[k] if as_read else np.rint(np.clip(src[k], 0.0, 1.0) * np.float32(65535.0)).astype(dtype)
         levels = _with_view(levels, k, np.ascontiguousarray(view))
     return levels
 
@@ -178,7 +179,7 @@ def _squares_on_mask(photos, reach: float):
     if np.shape(photos)[-1] != 4:
         return None
     alpha = np.asarray(photos)[..., 3]
-    half = 127 if alpha.dtype == np.uint8 else 0.5  # a view at a time: no float copy of every mask
+    half = np.iinfo(alpha.dtype).max / 2 if alpha.dtype in (np.uint8, np.uint16) else 0.5  # no float copy
     return np.stack([ndimage.distance_transform_edt(np.pad(a > half, 1, mode="edge"))[1:-1, 1:-1] > reach for a in alpha])
 
 
@@ -293,7 +294,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     Args:
         mesh: a `Mesh`, a `trimesh.Trimesh` or `(vertices, faces)`, in the cameras' frame.
         cameras: the `Cameras` of `photos` (pinhole, their size the photos').
-        photos: `(N, H, W, 3|4)` photos (float in [0, 1] or uint8); a 4th channel is the object's
+        photos: `(N, H, W, 3|4)` photos (float in [0, 1], uint8 or uint16); a 4th channel is the object's
             mask (> 0.5: object): a view counts for a vertex only where its square lies on it.
         fixed: optional `(V,)` bool, vertices that stay (with their one-ring), such as an outline.
         rounds: sweeps, each from the last one's surface; neighbours: views compared with the
@@ -325,7 +326,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     slot = np.full(n_all, -1, np.int64)
     slot[held] = np.arange(len(held))
     total = total if split else (lambda x: x)
-    src = photo_array(photos, "photos", len(held), keep_uint8=True)
+    src = photo_array(photos, "photos", len(held), as_read=True)
     on_mask = _squares_on_mask(photos, patch * spacing * np.sqrt(2.0) + 1.0)
     if src.shape[1:3] != (cameras.height, cameras.width):
         raise ValueError(f"photos: size {src.shape[1:3]} differs from the cameras' {(cameras.height, cameras.width)}")

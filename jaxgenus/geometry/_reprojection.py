@@ -94,21 +94,21 @@ def ray_intersector(tm: trimesh.Trimesh):
     return RayMeshIntersector(tm)
 
 
-def photo_array(x, name: str, n: int | None = None, *, keep_uint8: bool = False) -> np.ndarray:
-    """The checked RGB of photos `x` as float32 in [0, 1]; `keep_uint8`: 8-bit photos as they are."""
+def photo_array(x, name: str, n: int | None = None, *, as_read: bool = False) -> np.ndarray:
+    """The checked RGB of photos `x` as float32 in [0, 1]; `as_read`: 8- and 16-bit photos as they are."""
     x = np.asarray(x)
     if x.ndim != 4 or x.shape[-1] not in (3, 4):
         raise ValueError(f"{name}: expected (N, H, W, 3 or 4) photos, got shape {x.shape}")
     if n is not None and len(x) != n:
         raise ValueError(f"{name}: {len(x)} photos for {n} cameras")
-    if x.dtype != np.uint8 and not all(np.isfinite(view).all() for view in x):  # a view at a time: no full-size mask
-        raise ValueError(f"{name}: photos must be finite")
-    if x.dtype == np.uint8 and keep_uint8:
-        return x[..., :3]
-    if x.dtype == np.uint8:
-        out = x[..., :3].astype(np.float32)
-        out *= np.float32(1.0 / 255.0)
+    if x.dtype in (np.uint8, np.uint16):
+        if as_read:
+            return x[..., :3]
+        out = x[..., :3].astype(np.float32)  # uint8 / 255, uint16 / 65535, as image files are read
+        out *= np.float32(1.0 / np.iinfo(x.dtype).max)
         return out
+    if not all(np.isfinite(view).all() for view in x):  # a view at a time: no full-size mask
+        raise ValueError(f"{name}: photos must be finite")
     return np.asarray(x[..., :3], np.float32)  # float32 photos are not copied (and never written to)
 
 
@@ -142,7 +142,7 @@ def reprojection_psnr(mesh, photos, cameras: Cameras, held_photos, held_cameras:
 
     Args:
         mesh: a `Mesh`, a `trimesh.Trimesh` or `(vertices, faces)`, in the cameras' frame.
-        photos, cameras: the training photos `(N, H, W, 3|4)` (float in [0, 1] or uint8)
+        photos, cameras: the training photos `(N, H, W, 3|4)` (float in [0, 1], uint8 or uint16)
             and their cameras.
         held_photos, held_cameras: the held-out photos `(M, H', W', 3|4)` and cameras.
         held_masks: `(M, H', W')` object masks of the held-out photos (> 0.5: object), or
