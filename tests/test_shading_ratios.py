@@ -133,7 +133,8 @@ def test_fine_textures_turn_the_term_on(scene):
 
 def test_fine_textures_weigh_the_silhouettes_more(scene):
     """For photos of a fine texture the fit takes `TEXTURE_SETTINGS`: it raises the silhouette weight,
-    lowers the photometric weight, turns shading ratios on, compares them unblurred, closes with two
+    lowers the photometric weight, turns shading ratios on, compares them unblurred, weighs the stereo
+    depths more, closes with two
     polish cycles, runs five cycles and remeshes curvature-adaptively, each only where the caller did
     not name the setting (a default named holds too); smooth photos keep all, and so do cells the
     finest level fitted blurs (the share is measured on the images the fit sees)."""
@@ -141,7 +142,7 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
     from jaxgenus.pipeline._setup import FINE_TEXTURE, TEXTURE_SETTINGS, fine_texture, texture_share
 
     cams, photos, _ = scene
-    base, polish, adaptive, cycles = jg.ReconstructOptions(), [], [], []
+    base, polish, adaptive, cycles, stereo = jg.ReconstructOptions(), [], [], [], []
 
     def weights(name, options, factor=1):
         lines, level = [], photos[name] if isinstance(name, str) else name
@@ -151,32 +152,37 @@ def test_fine_textures_weigh_the_silhouettes_more(scene):
         polish.append(fitted.polish_cycles)
         adaptive.append(fitted.remesh_options.adaptive)
         cycles.append(fitted.n_cycles)
+        stereo.append(w.stereo)
         return w.alpha, w.shading_ratio, w.consistency_blur, w.photo, lines
 
     alpha, ratio, blur, photo, said = weights("cells", base)
     t = TEXTURE_SETTINGS
     assert (alpha, ratio, blur, photo) == (t["alpha"], t["shading_ratio"], t["consistency_blur"], t["photo"]) == (4.0, 6.0, 0.0, 1.0)
     assert len(said) == 1 and all(s in said[0] for s in ("alpha=4.0", "shading_ratio=6.0", "consistency_blur=0.0",
-                                                         "photo=1.0", "polish_cycles=2",
+                                                         "photo=1.0", "polish_cycles=2", "stereo=16.0",
                                                          "adaptive=True", "n_cycles=5")), said
     assert polish[-1] == t["polish_cycles"] == 2 and base.polish_cycles == 0
     assert adaptive[-1] and not base.remesh_options.adaptive
     assert cycles[-1] == t["n_cycles"] == 5 and base.n_cycles == 4
+    assert stereo[-1] == t["stereo"] == 16.0 and base.optimize.weights.stereo == 1.0
     # photos that resolve 4x the budget's faces or more (a DTU-class capture) keep the cycles as set
     detailed = fine_texture(base, "photo", photos["cells"], print, 4 * base.face_budget)
     assert detailed.n_cycles == 4 and detailed.polish_cycles == t["polish_cycles"]
     assert fine_texture(base, "photo", photos["cells"], print, 4 * base.face_budget - 1).n_cycles == 5
     kept = base.updated(alpha=2.0, shading_ratio=1.5, consistency_blur=0.5, photo=3.0, polish_cycles=1, adaptive=True)
     kept = kept.updated(n_cycles=3)
+    kept = kept.updated(stereo=2.0)
     assert weights("cells", kept) == (2.0, 1.5, 0.5, 3.0, []) and polish[-1] == 1 and cycles[-1] == 3  # the caller's
+    assert stereo[-1] == 2.0
     defaults = base.updated(alpha=1.0, shading_ratio=0.0, consistency_blur=1.0, photo=6.0, polish_cycles=0,
-                            adaptive=False, n_cycles=4)  # the defaults, named: held
+                            adaptive=False, n_cycles=4, stereo=1.0)  # the defaults, named: held
     assert weights("cells", defaults) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
     assert cycles[-1] == 4
     off = base.updated(fine_texture=False)
     assert weights("cells", off) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
     assert cycles[-1] == 4
     assert weights("cells", base.updated(consistency=0.0))[2] == 1.0 and polish[-1] == 0  # no term: no polish
+    assert weights("cells", base.replaced(stereo=0.0))[0] == 4.0 and stereo[-1] == 0.0  # off stays off
     assert weights("constant", base) == (1.0, 0.0, 1.0, 6.0, []) and polish[-1] == 0 and not adaptive[-1]
     assert cycles[-1] == 4
     # the same cells at 4x the size (44 px): few pixels on an edge; fitted at 1/4 they are fine again

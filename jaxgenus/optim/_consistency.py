@@ -55,8 +55,10 @@ _DEPTH_STEP = 0.02
 ROBUST_SPREAD = 2.0
 _MIN_SCALE = 1e-3
 #: The scale of `stereo_depth_cost`: relative depth differences well below it pull as their squares, larger
-#: ones are bounded (a wrong stereo match costs little).
-STEREO_SCALE = 0.02
+#: ones are bounded (a wrong stereo match costs little). 0.04 of the depth (about 14 px at 256^2 and a
+#: 40 degree field) reaches the floor of a concavity the visual hull spans; 0.02 held the fit off the
+#: skull's eye sockets (docs/results.md, "A heavier stereo term").
+STEREO_SCALE = 0.04
 _OVERLAP_POINTS = 2000  # `view_neighbours` measures overlaps on at most this many points
 
 
@@ -64,9 +66,10 @@ def view_neighbours(cameras: Cameras, centre=(0.0, 0.0, 0.0), *, points=None, co
                     min_angle: float = 5.0, max_angle: float = 40.0, best_angle: float = 20.0,
                     min_overlap: float = 0.3) -> np.ndarray:
     """`(N, count)` int32: per view, the views that see much of what it sees from `min_angle` to
-    `max_angle` degrees away, nearest to `best_angle` first; rows with fewer fill up with the best
-    again. A view with none there (sparse rings) takes its nearest view within 1.5 x `max_angle`,
-    and with none at all holds its own index (a pair with itself carries no signal).
+    `max_angle` degrees away, nearest to `best_angle` first. A view with fewer there (sparse rings:
+    24 views of a sphere lie about 40 degrees apart) fills up with its nearest views within 1.5 x
+    `max_angle`; rows that still have fewer repeat the best, and a view with none at all holds its
+    own index (a pair with itself carries no signal).
 
     What a view sees is the part of `points` (`(M, 3)`, e.g. the visual hull's vertices; default:
     `centre` alone) in front of it and inside its image; a pair needs `min_overlap` of it inside
@@ -113,14 +116,11 @@ def view_neighbours(cameras: Cameras, centre=(0.0, 0.0, 0.0), *, points=None, co
     out = np.empty((len(cameras), count), np.int32)
     for i in range(len(cameras)):
         cand = np.flatnonzero(ok[i])
-        if len(cand) == 0:
-            cand = np.flatnonzero(wide[i])
-            if len(cand) == 0:
-                out[i] = i
-                continue
-            cand = cand[np.argsort(angle[i, cand], kind="stable")][:1]
         cand = cand[np.argsort(np.abs(angle[i, cand] - best_angle), kind="stable")][:count]
-        out[i] = np.resize(cand, count)
+        if len(cand) < count:  # the nearest of the wider ones after them
+            more = np.flatnonzero(wide[i] & ~ok[i])
+            cand = np.concatenate([cand, more[np.argsort(angle[i, more], kind="stable")][:count - len(cand)]])
+        out[i] = np.resize(cand, count) if len(cand) else i
     return out
 
 

@@ -198,10 +198,11 @@ FINE_TEXTURE = 0.3
 #: silhouettes weighed more (the outline the masks give is what shading cannot confuse); the
 #: photometric term less (a per-vertex albedo cannot hold the texture, photo-consistency does better
 #: with less shading); photo-consistency compared unblurred (a blur in each photo's own pixels biases
-#: NCC where two views foreshorten the texture differently); two closing polish cycles; one more
-#: cycle; curvature-adaptive remeshing.
-TEXTURE_SETTINGS = {"shading_ratio": 6.0, "alpha": 4.0, "photo": 1.0, "consistency_blur": 0.0, "polish_cycles": 2,
-                    "n_cycles": 5, "adaptive": True}
+#: NCC where two views foreshorten the texture differently); the stereo depths pulling harder (the
+#: only term whose basin reaches a concavity pixels deep, and a fine texture is where they are right;
+#: "A heavier stereo term"); two closing polish cycles; one more cycle; curvature-adaptive remeshing.
+TEXTURE_SETTINGS = {"shading_ratio": 6.0, "alpha": 4.0, "photo": 1.0, "consistency_blur": 0.0, "stereo": 16.0,
+                    "polish_cycles": 2, "n_cycles": 5, "adaptive": True}
 #: Photos of a fine texture that resolve fewer faces than `max_faces` (not held) get a budget lowered
 #: to that count, to no less than this share of `max_faces`.
 TEXTURE_FACES = 2.0 / 3.0
@@ -228,8 +229,8 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, say: Callable[[
     edges cover `FINE_TEXTURE` of the masks or more (said when changed; photo targets and
     `options.fine_texture`; `photos` of every view, also where a process holds only some): each setting of
     `TEXTURE_SETTINGS` not in `options.held` at that value, but the colour terms (`consistency_blur`,
-    `polish_cycles`) only with photo-consistency on, and `n_cycles` only where the photos resolve
-    fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not counted) and
+    `polish_cycles`) only with photo-consistency on, `stereo` only when on, and `n_cycles` only where
+    the photos resolve fewer than 4 x the faces of the budget (`resolved`, `detail_budget`'s count; 0: not counted) and
     it is not more already. The share is measured on the images the fit sees: a texture the finest
     level blurs away is no fine texture. `share`: `texture_share(photos)` when measured already."""
     if kind != "photo" or not options.fine_texture:
@@ -237,6 +238,7 @@ def fine_texture(options: ReconstructOptions, kind: str, photos, say: Callable[[
     now = {k: getattr(options, k) for k in TEXTURE_SETTINGS}
     colour = options.consistency > 0
     skip = {"consistency_blur": not colour, "polish_cycles": not colour, "adaptive": not options.remesh,
+            "stereo": options.stereo <= 0,
             "n_cycles": resolved >= 4 * options.face_budget or now["n_cycles"] >= TEXTURE_SETTINGS["n_cycles"]}
     change = {k: v for k, v in TEXTURE_SETTINGS.items()
               if k not in options.held and not skip.get(k, False) and now[k] != v}
