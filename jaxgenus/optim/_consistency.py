@@ -21,7 +21,8 @@ Delaunoy & Pollefeys 2014, written here for the soft rasterizer.
 
 `view_neighbours` picks, for every view, the views that see much of what it sees
 from 5 to 40 degrees away (the baselines NCC works on), the nearest to 20 degrees
-first; a step samples one of them per reference view. `stereo_depth_cost` compares
+first, filled up with the nearest up to 60 degrees where fewer lie there (sparse rings);
+a step samples one of them per reference view. `stereo_depth_cost` compares
 the rendered depth with depths found by plane-sweep stereo of the photos alone
 (`jaxgenus.capture.stereo_depths`), whose basin is as wide as the sweep.
 """
