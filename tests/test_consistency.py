@@ -224,10 +224,10 @@ def test_reconstruct_with_photo_consistency_reports_residuals(tmp_path):
     cams = jg.sphere_cameras(16, radius=3.0, fov_deg=40.0, resolution=64)
     straight = np.asarray(raycast_lambert(cams, tm, light_direction=LIGHT, ambient=0.25, albedo=cells), np.float32)
     opts = jg.ReconstructOptions().updated(n_cycles=2, steps_per_cycle=15, consistency=1.0, polish_cycles=2)
-    rows = []
+    rows, lines = [], []
     with dumped_programs(tmp_path):
         rec = jg.reconstruct(straight, cams, 1, targets="photo", options=opts, key=jax.random.key(0),
-                             callback=lambda row, mesh: rows.append(row))
+                             callback=lambda row, mesh: rows.append(row), log=lines.append)
     assert_full_precision(tmp_path)
     res = np.asarray(rec.history["photo_consistency"], np.float64)
     assert res.shape == (16,) and np.any(np.isfinite(res)) and np.all(res[np.isfinite(res)] <= 1.0)
@@ -237,6 +237,10 @@ def test_reconstruct_with_photo_consistency_reports_residuals(tmp_path):
     cycles = rec.history["cycles"]
     assert [c.polish for c in cycles] == [False, False, True, True] and rows == list(cycles)
     assert all(c.n_cycles == 4 and c.remesh_status is None and c.faces == cycles[1].faces for c in cycles[2:])
+    # the last level is the photos' own size: the depth sweep runs before the polish, not after the fit
+    assert rec.history.resolution[-1]["factor"] == 1
+    assert [line.split(",")[0] for line in lines if line.startswith("photo depth:")] == [
+        "photo depth: before the polish"], lines
     polish = slice(30, 60)
     assert len(rec.history["loss"]) == 60 and np.all(np.isfinite(rec.history["loss"]))
     terms = {k: np.asarray(rec.history[k])[polish] for k in ("photo", "consistency")}

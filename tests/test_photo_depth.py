@@ -115,6 +115,33 @@ def test_the_right_surface_stays_and_fixed_vertices_do_not_move(scene):
     assert np.max(out.distance[fixed]) == 0.0
 
 
+def test_curved_squares_keep_a_curved_surface_in_place():
+    """A square of 12 px on a sphere of 1.6 px^-1 curvature: a flat square fits best about 0.3 px
+    inside the surface, and every vertex of the right sphere would move in; the squares bent with the
+    mesh's mean curvature keep them where they are (signed, the median over the band)."""
+    cams = _ring(resolution=96)
+    sphere = trimesh.creation.icosphere(subdivisions=4)
+    photos = raycast_lambert(cams, sphere, light_direction=LIGHT, ambient=0.4, albedo=cell_albedo(0.08))
+    pixel = 4.0 * np.tan(np.radians(20.0)) / 48
+    v, f = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    out = fit_photo_depth((v, f), cams, photos, rounds=1, anchor=1.0)
+    band = _seen_band(v) & out.measured
+    moved = np.einsum("vi,vi->v", out.vertices - v, v)[band] / pixel  # + outward, in pixels
+    assert band.sum() > 100 and abs(np.median(moved)) < 0.1, (band.sum(), np.median(moved))
+
+
+def test_one_pair_of_views_alone_moves_nothing_and_near_offsets_hold(scene):
+    """Two views: each vertex has one neighbour, and a pair alone does not count (`min_views`, 2);
+    with `min_views=1` it does. A surface 2.5-3.5 px out with `hold_px` 6 stays."""
+    cams, _, photos, pixel = scene
+    big = trimesh.creation.icosphere(subdivisions=3, radius=1.0 + 2.5 * pixel)
+    pair = fit_photo_depth(big, cams[:2], photos[:2], rounds=1)
+    assert not pair.measured.any()
+    assert fit_photo_depth(big, cams[:2], photos[:2], rounds=1, min_views=1).measured.sum() > 20
+    held = fit_photo_depth(big, cams, photos, rounds=1, hold_px=6.0, anchor=1.0)
+    assert held.measured.sum() > 50 and np.max(held.distance) < 0.05 * pixel
+
+
 def test_a_surface_without_texture_is_left_alone(scene):
     cams, sphere, _, _ = scene
     flat = raycast_lambert(cams, sphere, light_direction=LIGHT, ambient=1.0, albedo=(0.6, 0.5, 0.4))

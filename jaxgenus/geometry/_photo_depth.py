@@ -3,17 +3,22 @@
 A fit made at a fraction of the photos' size places the surface to within about a pixel of that
 size, several pixels of the photos'. `fit_photo_depth` refines it at the photos' own size, vertex by
 vertex: each vertex a camera sees is given a reference camera (the one that faces it most squarely)
-and up to `neighbours` more that see it from 5-35 degrees away. A square of reference pixels around the
-vertex's projection is cast onto planes through the vertex, tangent to the surface and moved along the
-normal in steps of a fraction of a reference pixel; each plane sends the square into the neighbours,
-and the zero-mean normalized cross-correlation (NCC) of the colours there (each channel zero-mean over
-the square, one norm over the three) against the reference square scores it (an exposure offset per
-channel and a gain common to the channels do not count). The
-best offset per vertex (a parabola through the best three) becomes a target, weighed by how far the
-best score stands above the mean one; vertices with too little texture (colour deviation under
-`min_contrast`), no neighbour, a best score under `min_ncc` or a best offset at the end of the range
-get none. The offsets of all vertices then solve `min sum_i w_i (d_i - t_i)^2 + smoothing * sum_edges (d_i - d_j)^2` (a
-sparse solve), so unmeasured vertices follow their neighbours; `fixed` vertices and their neighbours
+and up to `neighbours` more that see it from 5-35 degrees away (a vertex with fewer than two there,
+on a sparse ring of views or in a concavity few views see into, takes the views nearest the
+reference up to 1.5 times as far). A square of reference pixels around the vertex's projection is cast
+onto surfaces through the vertex, tangent to the mesh and bent with its mean curvature (a flat square
+on a curved surface would place the vertex a fraction of a pixel inside a convex one), moved along the
+normal in steps of a fraction of a reference pixel; each sends the square into the neighbours, and the
+zero-mean normalized cross-correlation (NCC) of the colours there (each channel zero-mean over the
+square, one norm over the three) against the reference square scores it (an exposure offset per
+channel and a gain common to the channels do not count). The best offset of the neighbours' mean
+score (a parabola through the best three) becomes a target, weighed by how far the best score stands
+above the mean one, where at least `min_views` neighbours have their own best within a step of it (one
+pair alone is fooled by an occluder or a repeated pattern); vertices with too little texture (colour
+deviation under `min_contrast`), a best score under `min_ncc` or a best offset at the end of the range
+get none, and a best offset nearer than `hold_px` holds the vertex where it is. The offsets of all
+vertices then solve `min sum_i w_i (d_i - t_i)^2 + anchor sum_i d_i^2 + smoothing sum_edges (d_i - d_j)^2`
+(a sparse solve), so unmeasured vertices follow their neighbours; `fixed` vertices and their neighbours
 stay (the outline a mask placed: a move along the normal there moves the silhouette). Photos with a
 4th channel (a mask, as RGBA) count in a view only where the whole square lies on the mask: a square
 that reaches past the object's edge compares the background, not the surface. A few rounds, the
@@ -27,6 +32,7 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
+import igl
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -41,6 +47,7 @@ from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_co
 __all__ = ["PhotoDepthFit", "fit_photo_depth"]
 
 _CHUNK = 128  # vertices a sweep call: its temporaries ~90 MiB at 49 views x 17 planes x 81 samples x 8 partners
+_LEAST = 2  # partners a vertex should have; fewer within max_angle: look up to 1.5x as far
 _LEVEL = 1.0 / 65535.0  # the colours' 16-bit step; 8-bit photos' levels are 257 of them (exactly)
 
 
@@ -130,10 +137,13 @@ def _square_colours(colour, rot, focal, centre_px, centres, offsets, v, ref, slo
     return jnp.concatenate([a.reshape(a.shape[0], -1), sa[:, None]], axis=1)
 
 
-def _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots):
+def _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, sag, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots):
     """NCC `(C, K, D)` of each vertex's reference square (camera-frame position `x`, pixels `pu, pv`,
-    zero-mean colours `a`, deviation `sa`) against its `K` neighbours on `D` planes along its normal
-    (NaN: no such neighbour or out of its frame); `slots[:, j]`: where neighbour j's photo sits in `colour`."""
+    zero-mean colours `a`, deviation `sa`) against its `K` neighbours on `D` surfaces along its normal
+    (NaN: no such neighbour or out of its frame); `slots[:, j]`: where neighbour j's photo sits in `colour`.
+    Each surface is the tangent plane bent by `sag` `(C,)`: `sag r^2` along the normal at distance `r`
+    from the vertex (the mesh's mean curvature: a flat square on a curved surface would place the
+    vertex a fraction of a pixel inside a convex one)."""
     _, h, w, _ = colour.shape
     rays = jnp.stack([(pu - centre_px[ref, 0, None]) / focal[ref, 0, None],
                       (pv - centre_px[ref, 1, None]) / focal[ref, 1, None], jnp.ones_like(pu)], -1)
@@ -141,7 +151,9 @@ def _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, 
     planes = v[:, None, :] + (steps[None, :] * x[:, 2:3] / focal[ref, 0:1])[..., None] * n[:, None, :]
     t = (jnp.einsum("cdi,ci->cd", planes - centres[ref][:, None], n)[:, :, None]
          / jnp.einsum("cpi,ci->cp", rays, n)[:, None, :])
-    points = centres[ref][:, None, None] + t[..., None] * rays[:, None]  # (C, D, P, 3)
+    points = centres[ref][:, None, None] + t[..., None] * rays[:, None]  # (C, D, P, 3) on the planes
+    bend = sag[:, None, None] * jnp.sum((points - planes[:, :, None]) ** 2, -1)  # (C, D, P) along the normal
+    points = points + (bend / jnp.einsum("cpi,ci->cp", rays, n)[:, None])[..., None] * rays[:, None]
     out = []
     for j in range(nbr.shape[1]):
         cam = nbr[:, j]
@@ -158,19 +170,19 @@ def _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, 
 
 
 @jax.jit
-def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok):
+def _sweep_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, sag, ref, nbr, nbr_ok):
     """NCC `(C, K, D)` of each vertex's reference square against its `K` neighbours on `D` planes
     along its normal (`_partner_ncc`), every view's photo in `colour`."""
     x, pu, pv, a, sa = _reference_squares(colour, rot, focal, centre_px, centres, offsets, v, ref)
-    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, nbr_ok, x, pu, pv, a, sa, nbr)
+    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, sag, ref, nbr, nbr_ok, x, pu, pv, a, sa, nbr)
 
 
 @jax.jit
-def _held_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, ref, nbr, nbr_ok, a, sa, slots):
+def _held_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, sag, ref, nbr, nbr_ok, a, sa, slots):
     """`_sweep_scores` where `colour` holds only some views (`slots`: where each neighbour's photo sits,
     0 where it is not held: `nbr_ok` is False there) and the reference squares' colours come in."""
     x, pu, pv = _reference_pixels(rot, focal, centre_px, centres, offsets, v, ref)
-    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots)
+    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, sag, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots)
 
 
 def _squares_on_mask(photos, reach: float):
@@ -197,17 +209,32 @@ def _on(on_mask, v, arrays):
     return out
 
 
-def _partners(v, cosines, centres, neighbours: int, max_angle: float):
+def _partners(v, cosines, centres, neighbours: int, max_angle: float, least: int = _LEAST):
     """Per vertex: the reference camera (facing it most squarely), up to `neighbours` others that
-    see it 5 to `max_angle` degrees away from the reference's direction, and which of those exist."""
+    see it 5 to `max_angle` degrees away from the reference's direction (those facing it most
+    squarely first), and which of those exist. A vertex with fewer than `least` there (sparse rings,
+    a concavity few views see into) takes the views nearest its reference up to 1.5 `max_angle` too."""
     ref = np.argmax(cosines, axis=1)
     usable = cosines[np.arange(len(v)), ref] > 0.3
     dirs = centres[None] - v[:, None]
     dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
     cos_ref = np.einsum("vni,vi->vn", dirs, dirs[np.arange(len(v)), ref])
-    good = (cosines > 0.1) & (cos_ref <= np.cos(np.radians(5.0))) & (cos_ref >= np.cos(np.radians(max_angle)))
-    order = np.argsort(-np.where(good, cosines, -9.0), axis=1)[:, :neighbours]
-    return ref, order, np.take_along_axis(good, order, 1) & usable[:, None]
+    seen = (cosines > 0.1) & (cos_ref <= np.cos(np.radians(5.0)))
+    good = seen & (cos_ref >= np.cos(np.radians(max_angle)))
+    wide = seen & (cos_ref >= np.cos(np.radians(min(1.5 * max_angle, 89.0)))) & (good.sum(1) < least)[:, None]
+    rank = np.where(good, 2.0 + cosines, np.where(wide, cos_ref, -9.0))  # in range first, then the nearest
+    order = np.argsort(-rank, axis=1)[:, :neighbours]
+    return ref, order, np.take_along_axis(good | wide, order, 1) & usable[:, None]
+
+
+def _sags(v, faces, normals):
+    """Per vertex, `-(k1 + k2) / 4` from the mesh's mean curvature (cotangent Laplacian over the
+    Voronoi areas): the height `sag r^2` along the normal of a paraboloid with the surface's mean
+    curvature (isotropic); 0 where it is not finite."""
+    lap = igl.cotmatrix(v, faces)
+    area = igl.massmatrix(v, faces, igl.MASSMATRIX_TYPE_VORONOI).diagonal()
+    curv = np.einsum("vi,vi->v", (lap @ v) / np.maximum(area, 1e-30)[:, None], normals) / 4.0
+    return np.where(np.isfinite(curv), curv, 0.0)
 
 
 def _chunked(kernel, v, *per_vertex):
@@ -226,7 +253,7 @@ def _spreads(colour, arrays, offsets, v, ref, slot):
     return _chunked(lambda *a: _square_spreads(colour, r, focal, centre_px, centres, offsets, *a), v, ref, slot)
 
 
-def _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, slot, total):
+def _held_ncc(colour, arrays, offsets, steps, v, normals, sag, ref, nbr, nbr_ok, slot, total):
     """`(V, K, D)` NCC of each vertex's reference square against its neighbours where the views are
     split over processes (`slot`: where each view's photo sits in this process's `colour`, -1 where
     another holds it): the holder of a vertex's reference view samples its square, the squares are
@@ -246,7 +273,8 @@ def _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, slot
         i = np.minimum(np.arange(s, s + size), len(pv) - 1)
         cam = nbr[pv[i], pk[i]][:, None]
         out = _held_scores(colour, r, focal, centre_px, centres, offsets, steps, *(jnp.asarray(x) for x in (
-            v[pv[i]].astype(np.float32), normals[pv[i]].astype(np.float32), ref[pv[i]], cam, np.ones_like(cam, bool),
+            v[pv[i]].astype(np.float32), normals[pv[i]].astype(np.float32), sag[pv[i]].astype(np.float32), ref[pv[i]],
+            cam, np.ones_like(cam, bool),
             a[pv[i]], sa[pv[i]], slot[cam])))
         n = min(size, len(pv) - s)
         ncc[pv[s:s + n], pk[s:s + n]] = np.asarray(out)[:n, 0]
@@ -255,20 +283,23 @@ def _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, slot
     return np.where(counted > 0, total(np.where(finite, ncc, 0.0).astype(np.float32)), np.nan)
 
 
-def _scores(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, held=None):
-    """The mean NCC over each vertex's neighbours per plane `(V, D)` and how many neighbours counted
-    (`_sweep_scores`; `held`: `(slot, total)` of `_held_ncc` where the views are split over processes)."""
+def _scores(colour, arrays, offsets, steps, v, normals, sag, ref, nbr, nbr_ok, held=None):
+    """The mean NCC over each vertex's neighbours per plane `(V, D)` and how many neighbours have their
+    own best within a plane of that mean's best (`_sweep_scores`; `held`: `(slot, total)` of `_held_ncc` where the views are split over processes)."""
     if held is None:
         r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
         ncc = _chunked(lambda *a: _sweep_scores(colour, r, focal, centre_px, centres, offsets, steps, *a),
-                       v, normals.astype(np.float32), ref, nbr, nbr_ok)
+                       v, normals.astype(np.float32), sag.astype(np.float32), ref, nbr, nbr_ok)
     else:
-        ncc = _held_ncc(colour, arrays, offsets, steps, v, normals, ref, nbr, nbr_ok, *held)
+        ncc = _held_ncc(colour, arrays, offsets, steps, v, normals, sag, ref, nbr, nbr_ok, *held)
     ok = np.isfinite(ncc[:, :, len(steps) // 2])
-    return np.where(ok[:, :, None] & np.isfinite(ncc), ncc, 0.0).sum(1) / np.maximum(ok.sum(1), 1)[:, None], ok.sum(1)
+    score = np.where(ok[:, :, None] & np.isfinite(ncc), ncc, 0.0).sum(1) / np.maximum(ok.sum(1), 1)[:, None]
+    own = np.argmax(np.where(np.isfinite(ncc), ncc, -9.0), axis=2)  # each neighbour's own best plane
+    agree = ok & (np.abs(own - np.argmax(score, axis=1)[:, None]) <= 1)
+    return score, agree.sum(1)
 
 
-def _targets(score, count, spread, min_ncc: float, min_contrast: float):
+def _targets(score, count, spread, min_ncc: float, min_contrast: float, min_views: int):
     """Best offset (in steps, parabola-refined), weight and the NCC at 0 and at the best, per vertex."""
     n_steps = score.shape[1]
     half = n_steps // 2
@@ -280,15 +311,30 @@ def _targets(score, count, spread, min_ncc: float, min_contrast: float):
     frac = np.where(curve < -1e-9, 0.5 * (s0 - s2) / np.where(curve < -1e-9, curve, -1.0), 0.0)
     offset = mid + np.clip(frac, -0.5, 0.5) - half
     top = score[rows, best]
-    ok = (count >= 1) & (spread > min_contrast) & (top > min_ncc) & (best > 0) & (best < n_steps - 1)
+    ok = (count >= min_views) & (spread > min_contrast) & (top > min_ncc) & (best > 0) & (best < n_steps - 1)
     weight = np.where(ok, np.clip((top - score.mean(axis=1)) / 0.2, 0.0, 1.0), 0.0)
     return offset, weight, ok, score[rows, half], top
+
+
+def _check_settings(*, max_angle: float, step_px: float, search_px: float, hold_px: float, **named) -> None:
+    """A `ValueError` naming the first of `fit_photo_depth`'s settings out of its range."""
+    bad = [f"{k}: expected an int >= {0 if k == 'rounds' else 1}, got {v!r}" for k, v in named.items()
+           if k in ("rounds", "neighbours", "patch", "min_views") and not (isinstance(v, int) and v >= (k != "rounds"))]
+    bad += [f"{k}: expected > 0, got {v!r}" for k, v in named.items()
+            if k in ("spacing", "smoothing", "anchor") and not v > 0]
+    bad += [f"max_angle: expected 5 < max_angle < 90 (degrees), got {max_angle!r}"] if not 5.0 < max_angle < 90.0 else []
+    bad += [f"step_px, search_px: expected 0 < step_px < search_px, got {step_px!r}, {search_px!r}"
+            ] if not 0 < step_px < search_px else []
+    bad += [f"hold_px: expected >= 0, got {hold_px!r}"] if not hold_px >= 0 else []
+    if bad:
+        raise ValueError(bad[0])
 
 
 def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int = 2, neighbours: int = 8,
                     max_angle: float = 35.0, patch: int = 4, spacing: float = 1.5, search_px: float = 12.0,
                     step_px: float = 1.5, smoothing: float = 0.1, min_ncc: float = 0.3,
-                    min_contrast: float = 0.0115, held=None, total=None) -> PhotoDepthFit:
+                    min_contrast: float = 0.0115, min_views: int = 2, hold_px: float = 0.0, anchor: float = 1e-6,
+                    held=None, total=None) -> PhotoDepthFit:
     """`mesh`'s vertices moved along their normals to where `photos` agree (module doc).
 
     Args:
@@ -304,7 +350,10 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
             normal in steps of `step_px`; each later round halves both.
         smoothing: the weight of the edge term of the solve; min_ncc, min_contrast: the least best
             score and the reference square's colour deviation (RMS over its samples and the three
-            channels, in [0, 1] levels) a vertex needs to count.
+            channels, in [0, 1] levels) a vertex needs to count; min_views: the neighbours that must
+            agree on its best offset.
+        hold_px: a vertex whose best offset is nearer than this (reference pixels) stays where it is
+            (a measured offset of 0); anchor: the solve's pull of every vertex to where it is.
         held, total: where the views are split over processes (each passing the same mesh, every
             camera, and the photos of its own views, `held`: their indices into `cameras`), a
             function summing an array over the processes (`jaxgenus.optim.summed_over_processes`):
@@ -334,12 +383,9 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
     keep = np.zeros(len(tm.vertices), bool) if fixed is None else np.asarray(fixed)
     if keep.shape != (len(tm.vertices),) or keep.dtype != bool:
         raise ValueError(f"fixed: expected a ({len(tm.vertices)},) bool array, got {keep.dtype} {keep.shape}")
-    if not (isinstance(rounds, int) and rounds >= 0 and isinstance(neighbours, int) and neighbours >= 1
-            and isinstance(patch, int) and patch >= 1 and 5.0 < max_angle < 90.0
-            and min(spacing, search_px, step_px) > 0 and step_px < search_px and smoothing > 0):
-        raise ValueError("rounds >= 0, neighbours >= 1, patch >= 1, 5 < max_angle < 90, spacing, search_px, step_px "
-                         f"and smoothing > 0 and step_px < search_px needed, got {rounds}, {neighbours}, {patch}, "
-                         f"{max_angle}, {spacing}, {search_px}, {step_px}, {smoothing}")
+    _check_settings(rounds=rounds, neighbours=neighbours, patch=patch, min_views=min_views, max_angle=max_angle,
+                    spacing=spacing, search_px=search_px, step_px=step_px, smoothing=smoothing, anchor=anchor,
+                    hold_px=hold_px)
     shift = 0.5 * (tm.vertices.min(0) + tm.vertices.max(0))  # embree is float32: trace near the origin
     v0 = np.asarray(tm.vertices, np.float64) - shift
     r, t, focal, centre_px, centres = camera_arrays(cameras)
@@ -362,6 +408,7 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
         steps = jnp.asarray(planes * step)
         cur.vertices = v
         normals = np.asarray(cur.vertex_normals)
+        sag = _sags(v, faces, normals)
         tol = 1e-3 * float(np.linalg.norm(np.ptp(v, axis=0)))
         cosines = np.zeros((len(v), n_all), np.float32)  # each view's column from the process holding it
         cosines[:, held] = facing_cosines(cur, ray_intersector(cur), tol, mine, (cameras.height, cameras.width),
@@ -380,14 +427,15 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
             spread = total(spread)
             act = act[spread[act] > min_contrast]
         if len(act):
-            score[act], count[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], ref[act], nbr[act],
+            score[act], count[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], sag[act], ref[act], nbr[act],
                                              nbr_ok[act], (slot, total) if split else None)
-        offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast)
+        offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast, min_views)
+        offset = np.where(np.abs(offset) * step >= hold_px, offset, 0.0)  # nearer than hold_px: stay
         pixel = np.einsum("vi,vi->v", v - arrays[4][ref], r[ref, 2]) / focal[ref, 0]
         free = np.flatnonzero(~keep)  # the kept vertices' offsets are 0 exactly
         d = np.zeros(len(v))
         if len(free):
-            system = (sparse.diags(weight[free] + 1e-6) + lap[free][:, free]).tocsc()
+            system = (sparse.diags(weight[free] + anchor) + lap[free][:, free]).tocsc()
             d[free] = sparse_linalg.spsolve(system, weight[free] * offset[free] * step * pixel[free])
         d = np.clip(d, -n_half * step * pixel, n_half * step * pixel)
         if not np.isfinite(d).all():

@@ -12,10 +12,12 @@ import dataclasses
 import time
 from typing import Callable
 
+import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 
-from jaxgenus.geometry import Mesh, genus as mesh_genus, is_closed_manifold
-from jaxgenus.optim import init_optimizer_state, place, pyramid_level, scaled_cameras
+from jaxgenus.geometry import Mesh, fit_photo_depth, genus as mesh_genus, is_closed_manifold
+from jaxgenus.optim import init_optimizer_state, place, pyramid_level, scaled_cameras, summed_over_processes
 from jaxgenus.pipeline._cycles import CycleRun, Level, polish_count, run_one_jit, run_per_cycle, run_polish
 from jaxgenus.pipeline._history import GenusEstimate, HandleRecord, History, Reconstruction
 from jaxgenus.pipeline._options import ReconstructOptions
@@ -27,6 +29,15 @@ from jaxgenus.pipeline._verdict import Evidence, Verdict, judge
 from jaxgenus.rendering import LIGHTING_SHAPES
 
 __all__ = ["FitIndex", "estimate_warnings", "fit", "refits", "start_line"]
+
+#: Where the fit reaches the photos' own size, the depth sweep before the polish moves a vertex only
+#: where the photos agree a plane step (1.5 px) or more away: nearer, the fit (a tenth of a pixel on
+#: smooth textured surfaces) is finer than the sweep (a fifth); farther, it is a concavity the
+#: silhouettes and the fit's local gradients did not reach (docs/results.md, 2026-12-08).
+SWEEP_HOLD_PX = 1.5
+#: The sweep's pull of each unmeasured vertex to where it is (its solve's diagonal): a move fades over
+#: about three edges from the vertices measured (`fit_photo_depth`'s `anchor`).
+SWEEP_ANCHOR = 0.01
 
 
 @dataclasses.dataclass(frozen=True)
@@ -120,6 +131,8 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
         run = run_one_jit(state, levels, lengths, options, t0, user_callback)
     else:
         run = run_per_cycle(state, levels, lengths, options, t0, user_callback, remaining)
+    if polish and setup.targets.kind == "photo" and options.fit_photo_depth and levels[-1].factor == 1:
+        run = _swept(run, setup, levels[-1], say)
     if polish:
         say(f"polish: {polish} cycles of {options.steps_per_cycle} steps on the silhouettes and colour "
             "photo-consistency only (polish_cycles=0 given by name: none)")
@@ -135,6 +148,30 @@ def fit(setup: Setup, start: Start, options: ReconstructOptions, key, index: Fit
     seconds = time.perf_counter() - t0 - run.callback_seconds
     history = _history(setup, start, options, run, verdict, levels, seconds, index)
     return Reconstruction(mesh=written, genus=g, genus_ok=genus_ok, history=history, options=options, albedo=albedo)
+
+
+def _swept(run: CycleRun, setup: Setup, level: Level, say: Callable[[str], None]) -> CycleRun:
+    """`run` with its mesh moved along its normals to where the photos agree (`fit_photo_depth`: two
+    sweeps of +-12 and +-6 px, two neighbouring views agreeing; `SWEEP_HOLD_PX`, `SWEEP_ANCHOR`), for a fit whose
+    finest level is the photos' own size; the polish that follows fits what it moved. With the views
+    split over processes each sweeps with its own views and the moves are summed (the same mesh in each)."""
+    t0 = time.perf_counter()
+    mesh = run.state.mesh
+    v, f = mesh.to_numpy()
+    split = setup.held is not None and len(setup.held) < len(setup.cams)
+    out = fit_photo_depth((v, f), setup.cams, setup.images, hold_px=SWEEP_HOLD_PX, anchor=SWEEP_ANCHOR,
+                          held=setup.held if split else None, total=summed_over_processes if split else None)
+    moved = int((out.distance > 1e-4).sum()) if np.isfinite(out.vertices).all() else 0  # the frame: about unit size
+    if moved:
+        vertices = mesh.vertices.at[: len(v)].set(jnp.asarray(out.vertices, mesh.vertices.dtype))
+        state = eqx.tree_at(lambda s: s.mesh.vertices, run.state, vertices)
+        if level.valid is not None:  # views split over devices: the state stays replicated on them
+            state = place(state, level.valid.sharding.mesh, split=False)
+        run = dataclasses.replace(run, state=state)
+    say(f"photo depth: before the polish, {int(out.measured.sum())} of {len(v)} vertices measured where two views "
+        f"agree at {setup.cams.width}x{setup.cams.height}, {moved} moved by > 1e-4 of the object's size ({time.perf_counter() - t0:.0f}s; "
+        "ReconstructOptions.fit_photo_depth=False: off)")
+    return run
 
 
 def _verdict(setup: Setup, start: Start, options: ReconstructOptions, run: CycleRun, levels: list[Level],

@@ -297,8 +297,9 @@ def _stages(setup: Setup, options: ReconstructOptions, genus_given: bool, polish
     if options.start == "auto":
         stages.append("handles the hull lacks: " + ("a fit at its genus, cut where the normal images show holes"
                                                     if normals and options.hidden_handles == "images" else "drilled"))
+    swept = polish and last == 1 and options.fit_photo_depth and kind == "photo"  # the sweep before the polish
     stages.append(f"fit {options.n_cycles} cycles x {options.steps_per_cycle} steps"
-                  + (f" + {polish} polish cycles" if polish else ""))
+                  + (" + depth sweep" if swept else "") + (f" + {polish} polish cycles" if polish else ""))
     if not genus_given and normals and options.hidden_handles == "images" and options.start != "sphere":
         stages.append("genus: holes the normal images confirm counted and cut, then a fit")
     refits = options.refit_count(setup.cams.height, setup.cams.width, kind)
