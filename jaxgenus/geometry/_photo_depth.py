@@ -47,6 +47,7 @@ from jaxgenus.geometry._reprojection import as_trimesh, camera_arrays, facing_co
 __all__ = ["PhotoDepthFit", "fit_photo_depth"]
 
 _CHUNK = 128  # vertices a sweep call: its temporaries ~90 MiB at 49 views x 17 planes x 81 samples x 8 partners
+_HI = jax.lax.Precision.HIGHEST  # full float32 products on every backend (no TF32 on GPUs)
 _LEAST = 2  # partners a vertex should have; fewer within max_angle: look up to 1.5x as far
 _LEVEL = 1.0 / 65535.0  # the colours' 16-bit step; 8-bit photos' levels are 257 of them (exactly)
 
@@ -107,7 +108,7 @@ def _device_colours(src: np.ndarray):
 
 def _reference_pixels(rot, focal, centre_px, centres, offsets, v, ref):
     """Each vertex's position in its reference camera's frame `(C, 3)` and its square of pixels `(C, P)` x2."""
-    x = jnp.einsum("cij,cj->ci", rot[ref], v - centres[ref])
+    x = jnp.einsum("cij,cj->ci", rot[ref], v - centres[ref], precision=_HI)
     pu = (focal[ref, 0] * x[:, 0] / x[:, 2] + centre_px[ref, 0])[:, None] + offsets[None, :, 0]
     pv = (focal[ref, 1] * x[:, 1] / x[:, 2] + centre_px[ref, 1])[:, None] + offsets[None, :, 1]
     return x, pu, pv
@@ -147,17 +148,18 @@ def _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, sag, ref, 
     _, h, w, _ = colour.shape
     rays = jnp.stack([(pu - centre_px[ref, 0, None]) / focal[ref, 0, None],
                       (pv - centre_px[ref, 1, None]) / focal[ref, 1, None], jnp.ones_like(pu)], -1)
-    rays = jnp.einsum("cji,cpj->cpi", rot[ref], rays)  # (C, P, 3) world directions
+    rays = jnp.einsum("cji,cpj->cpi", rot[ref], rays, precision=_HI)  # (C, P, 3) world directions
     planes = v[:, None, :] + (steps[None, :] * x[:, 2:3] / focal[ref, 0:1])[..., None] * n[:, None, :]
-    t = (jnp.einsum("cdi,ci->cd", planes - centres[ref][:, None], n)[:, :, None]
-         / jnp.einsum("cpi,ci->cp", rays, n)[:, None, :])
+    t = (jnp.einsum("cdi,ci->cd", planes - centres[ref][:, None], n, precision=_HI)[:, :, None]
+         / jnp.einsum("cpi,ci->cp", rays, n, precision=_HI)[:, None, :])
     points = centres[ref][:, None, None] + t[..., None] * rays[:, None]  # (C, D, P, 3) on the planes
     bend = sag[:, None, None] * jnp.sum((points - planes[:, :, None]) ** 2, -1)  # (C, D, P) along the normal
-    points = points + (bend / jnp.einsum("cpi,ci->cp", rays, n)[:, None])[..., None] * rays[:, None]
+    along = bend / jnp.einsum("cpi,ci->cp", rays, n, precision=_HI)[:, None]  # (C, D, P): the ray's length to it
+    points = points + along[..., None] * rays[:, None]
     out = []
     for j in range(nbr.shape[1]):
         cam = nbr[:, j]
-        y = jnp.einsum("cij,cdpj->cdpi", rot[cam], points - centres[cam][:, None, None])
+        y = jnp.einsum("cij,cdpj->cdpi", rot[cam], points - centres[cam][:, None, None], precision=_HI)
         z = jnp.maximum(y[..., 2], 1e-9)
         u = focal[cam, 0, None, None] * y[..., 0] / z + centre_px[cam, 0, None, None]
         q = focal[cam, 1, None, None] * y[..., 1] / z + centre_px[cam, 1, None, None]
@@ -182,7 +184,8 @@ def _held_scores(colour, rot, focal, centre_px, centres, offsets, steps, v, n, s
     """`_sweep_scores` where `colour` holds only some views (`slots`: where each neighbour's photo sits,
     0 where it is not held: `nbr_ok` is False there) and the reference squares' colours come in."""
     x, pu, pv = _reference_pixels(rot, focal, centre_px, centres, offsets, v, ref)
-    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, sag, ref, nbr, nbr_ok, x, pu, pv, a, sa, slots)
+    return _partner_ncc(colour, rot, focal, centre_px, centres, steps, v, n, sag, ref, nbr, nbr_ok, x, pu, pv, a, sa,
+                        slots)
 
 
 def _squares_on_mask(photos, reach: float):
@@ -285,7 +288,8 @@ def _held_ncc(colour, arrays, offsets, steps, v, normals, sag, ref, nbr, nbr_ok,
 
 def _scores(colour, arrays, offsets, steps, v, normals, sag, ref, nbr, nbr_ok, held=None):
     """The mean NCC over each vertex's neighbours per plane `(V, D)` and how many neighbours have their
-    own best within a plane of that mean's best (`_sweep_scores`; `held`: `(slot, total)` of `_held_ncc` where the views are split over processes)."""
+    own best within a plane of that mean's best (`_sweep_scores`; `held`: `(slot, total)` of `_held_ncc`
+    where the views are split over processes)."""
     if held is None:
         r, _, focal, centre_px, centres = (jnp.asarray(a, jnp.float32) for a in arrays)
         ncc = _chunked(lambda *a: _sweep_scores(colour, r, focal, centre_px, centres, offsets, steps, *a),
@@ -427,8 +431,8 @@ def fit_photo_depth(mesh, cameras: Cameras, photos, *, fixed=None, rounds: int =
             spread = total(spread)
             act = act[spread[act] > min_contrast]
         if len(act):
-            score[act], count[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], sag[act], ref[act], nbr[act],
-                                             nbr_ok[act], (slot, total) if split else None)
+            score[act], count[act] = _scores(colour, arrays, offsets, steps, v[act], normals[act], sag[act], ref[act],
+                                             nbr[act], nbr_ok[act], (slot, total) if split else None)
         offset, weight, measured, at_zero, top = _targets(score, count, spread, min_ncc, min_contrast, min_views)
         offset = np.where(np.abs(offset) * step >= hold_px, offset, 0.0)  # nearer than hold_px: stay
         pixel = np.einsum("vi,vi->v", v - arrays[4][ref], r[ref, 2]) / focal[ref, 0]

@@ -169,8 +169,8 @@ def _swept(run: CycleRun, setup: Setup, level: Level, say: Callable[[str], None]
             state = place(state, level.valid.sharding.mesh, split=False)
         run = dataclasses.replace(run, state=state)
     say(f"photo depth: before the polish, {int(out.measured.sum())} of {len(v)} vertices measured where two views "
-        f"agree at {setup.cams.width}x{setup.cams.height}, {moved} moved by > 1e-4 of the object's size ({time.perf_counter() - t0:.0f}s; "
-        "ReconstructOptions.fit_photo_depth=False: off)")
+        f"agree at {setup.cams.width}x{setup.cams.height}, {moved} moved by > 1e-4 of the object's size "
+        f"({time.perf_counter() - t0:.0f}s; ReconstructOptions.fit_photo_depth=False: off)")
     return run
 
 
