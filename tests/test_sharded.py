@@ -180,6 +180,7 @@ def test_two_processes_reconstruct_one_capture(tmp_path):
     for out, _ in outs:  # each process read only the 8 views its device renders, and ran the photo method whole
         assert "8 of 16 views read here" in out and "this process holds 8 of 16 views" in out, out[:3000]
         assert "stereo: depths" in out and "fine texture" in out and "polish:" in out, out[:3000]
+        assert "photo depth: before the polish" in out, out[:3000]  # the sweep, split: each its own views
         assert "not used" not in out and "split over processes" not in out, out
     history = json.loads((tmp_path / "two" / "mesh.json").read_text())
     assert history["devices"] == 2 and np.max(history["consistency"]) > 0 and history["photo_consistency"] is not None
